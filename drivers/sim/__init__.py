@@ -1,0 +1,44 @@
+"""Driver ``sim``: a simulated 16-camera spherical rig rendering a (defective) part.
+
+Registered through the ``inspector`` entry-point group like any third-party driver.
+Heavy imports happen only when a capture is rendered.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+from inspector import hookimpl
+from inspector.registry import Acquisition, DriverRegistry, DriverSpec
+from inspector_drivers.sim.simulate import SimParams
+
+
+@dataclass
+class SimDriver:
+    """Yields ``params.count`` simulated captures (capture i uses seed + i)."""
+
+    params: SimParams
+
+    def acquire(self) -> Iterator[Acquisition]:
+        from inspector_drivers.sim.simulate import sim_rig, simulate
+
+        rig = sim_rig(self.params)
+        for i in range(self.params.count):
+            name = f"{self.params.part}-s{self.params.seed + i:04d}"
+            yield Acquisition(name, lambda i=i, name=name: simulate(self.params, i, rig, name=name))
+
+    def close(self) -> None:
+        pass
+
+
+@hookimpl
+def inspector_register_drivers(registry: DriverRegistry) -> None:
+    registry.add(
+        DriverSpec(
+            name="sim",
+            open=SimDriver,
+            params=SimParams,
+            doc="Simulated spherical rig: a built-in or given part, random pose, defects, anti-aliased noisy images",
+        )
+    )

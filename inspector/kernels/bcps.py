@@ -1,0 +1,297 @@
+"""Best-case coherent point selection (BCPS), the rule of equation (1) of the paper.
+
+For each contour point ``p`` of each camera with centre ``o``, among the candidate points
+``q`` on the ray ``o -> p`` that belong to the reconstruction, select
+``q* = argmin_q sd_ref(q)`` (signed distance to the aligned reference, negative inside).
+
+Two ways to get the candidates:
+
+* :func:`select_on_rays` (``ray``): the exact ray through the *sub-pixel* contour point,
+  sampled where it lies inside the silhouettes of all the other cameras (the image-based
+  visual hull of that ray); the minimum is refined to well below a pixel.
+* :func:`select_on_surface` (``surface``, the paper's way): the reconstruction's surface
+  points whose projection falls on a contour pixel.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from inspector.kernels.silhouette import sample_bilinear
+from inspector.model import Camera
+
+__all__ = ["View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box"]
+
+SignedDistance = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """A camera with its silhouette, as the selection needs it.
+
+    Attributes
+    ----------
+    camera : Camera
+    inside : (H, W) float32
+        Signed inside-ness in pixels (:func:`inspector.kernels.silhouette.inside_map`):
+        >= 0 inside the silhouette, minus the distance to it outside.
+    open_border : bool
+        The silhouette touches the image border: outside the image is unknown (inside).
+    """
+
+    camera: Camera
+    inside: np.ndarray
+    open_border: bool = False
+
+
+def hull_violation(X: np.ndarray, views: Sequence[View], limit: float = np.inf) -> np.ndarray:
+    """How far outside the visual hull of ``views`` world points lie, in pixels.
+
+    Parameters
+    ----------
+    X : (N, 3) float
+        World mm.
+    limit : float
+        Points already farther outside than this are not evaluated further (they keep a
+        value > ``limit``): a cheap early exit.
+
+    Returns
+    -------
+    (N,) float
+        ``max`` over views of the distance outside that view's silhouette (0 inside).
+    """
+    v = np.zeros(len(X))
+    alive = np.arange(len(X))
+    for view in views:
+        if alive.size == 0:
+            break
+        uv, z = view.camera.project(X[alive])
+        g = sample_bilinear(view.inside, uv[:, 0], uv[:, 1], outside=np.inf if view.open_border else -1e6)
+        g = np.where(z > 0, g, -1e6)
+        v[alive] = np.maximum(v[alive], -g)
+        alive = alive[v[alive] <= limit]
+    return v
+
+
+def hull_membership(X: np.ndarray, views: Sequence[View], tolerance_px: float = 0.0) -> np.ndarray:
+    """Whether world points (N, 3) lie inside every view's silhouette cone (within a tolerance)."""
+    return hull_violation(X, views, tolerance_px) <= tolerance_px
+
+
+def ray_box(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Entry and exit parameters of rays ``origin + t * dirs`` in an axis-aligned box.
+
+    Parameters
+    ----------
+    origin : (3,) float
+    dirs : (M, 3) float
+    bounds : (2, 3) float
+        Box min and max, mm.
+
+    Returns
+    -------
+    t0, t1 : (M,) float
+        ``t0 > t1`` when the ray misses the box.
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / dirs
+        a = (bounds[0] - origin) * inv
+        b = (bounds[1] - origin) * inv
+    lo = np.nanmax(np.minimum(a, b), axis=1)
+    hi = np.nanmin(np.maximum(a, b), axis=1)
+    return np.maximum(lo, 0.0), hi
+
+
+def _lipschitz_px_per_mm(views: Sequence[View], bounds: np.ndarray) -> float:
+    """Upper bound of how fast a point's projection moves, px per mm, inside ``bounds``."""
+    centre = bounds.mean(axis=0)
+    radius = 0.5 * float(np.linalg.norm(bounds[1] - bounds[0]))
+    worst = 0.0
+    for v in views:
+        depth = float(np.linalg.norm(v.camera.centre - centre)) - radius
+        f = float(max(v.camera.K[0, 0], v.camera.K[1, 1]))
+        worst = max(worst, f / max(depth, 1e-3))
+    return worst
+
+
+def _evaluate(origin, dirs, t, views, sd_fn, eps, tol, weight):
+    """Hull violation (px) and selection cost on a (R, K) grid of ray parameters.
+
+    The cost is the signed distance plus ``weight`` mm per pixel of violation beyond
+    ``tol`` (inf beyond ``eps``): strict BCPS where the silhouettes agree, and a graceful
+    choice where sub-pixel contours disagree by a fraction of a pixel (silhouette corners).
+    """
+    R, K = t.shape
+    X = (origin[None, None, :] + t[..., None] * dirs[:, None, :]).reshape(-1, 3)
+    viol = hull_violation(X, views, eps)
+    member = viol <= eps
+    sd = np.full(len(X), np.inf)
+    if member.any():
+        sd[member] = sd_fn(X[member])
+    cost = sd + weight * np.maximum(viol - tol, 0.0)
+    return viol.reshape(R, K), sd.reshape(R, K), cost.reshape(R, K)
+
+
+def select_on_rays(
+    origin: np.ndarray,
+    dirs: np.ndarray,
+    others: Sequence[View],
+    sd_fn: SignedDistance,
+    bounds: np.ndarray,
+    *,
+    step_mm: float = 0.25,
+    refine_levels: int = 2,
+    refine_samples: int = 21,
+    tolerance_px: float = 0.05,
+    accept_px: float = 0.5,
+    violation_weight: float = 3.0,
+    max_points: int = 1_000_000,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """BCPS on exact rays (the ``ray`` method).
+
+    A contour ray grazes the part, so its candidate set is often a very short segment or a
+    single point (wherever the same edge is on another camera's contour too). The coarse
+    grid therefore accepts samples within what a point's projection can move between two
+    samples (so no candidate interval is skipped); each refinement level tightens this,
+    down to ``accept_px``, and ranks samples by signed distance plus a penalty for any
+    violation beyond ``tolerance_px``.
+
+    Parameters
+    ----------
+    origin : (3,) float
+        Optical centre of the camera, mm.
+    dirs : (M, 3) float
+        Unit directions of the rays through its sub-pixel contour points.
+    others : sequence of View
+        Every *other* camera of the rig with its silhouette.
+    sd_fn : callable
+        ``(N, 3) world mm -> (N,)`` signed distance to the aligned reference, mm.
+    bounds : (2, 3) float
+        Box containing the object (e.g. the reconstruction's, with a margin).
+    step_mm : float
+        Coarse sampling step along the rays; the minimum is then refined ``refine_levels``
+        times on a grid of ``refine_samples`` around it, each level
+        ``(refine_samples - 1) / 2`` times finer.
+    tolerance_px : float
+        Hull tolerance, px, within which a point is a strict candidate (image noise moves
+        contours by a few hundredths of a pixel).
+    accept_px : float
+        Points up to this far outside the hull remain candidates at a cost of ``violation_weight`` pixel
+        footprints of deviation per pixel beyond ``tolerance_px``; rays whose best point is
+        farther out have no candidate.
+    violation_weight : float
+        Cost of one pixel of hull violation, in pixel footprints of signed distance
+        (3: measured best on simulated cubes; 1 lets points wander off the surface, 10
+        brings back outliers at silhouette corners).
+    max_points : int
+        Samples evaluated at once (memory bound).
+
+    Returns
+    -------
+    points : (M, 3) float
+        Selected point per ray (NaN where the ray has no candidate).
+    deviation : (M,) float
+        Signed distance of the selected point, mm (NaN where none).
+    segment_mm : (M,) float
+        Length of the ray's candidate set at the coarse tolerance, mm (0 where none).
+    valid : (M,) bool
+    """
+    M = len(dirs)
+    points = np.full((M, 3), np.nan)
+    deviation = np.full(M, np.nan)
+    segment = np.zeros(M)
+    valid = np.zeros(M, bool)
+    t0, t1 = ray_box(origin, dirs, bounds)
+    hit = np.flatnonzero(t1 > t0)
+    if hit.size == 0 or not others:
+        return points, deviation, segment, valid
+    lip = _lipschitz_px_per_mm(others, bounds)
+    weight = violation_weight / lip  # mm per pixel of violation
+    K = int(np.ceil((t1[hit] - t0[hit]).max() / step_mm)) + 1
+    chunk = max(1, max_points // K)
+    half = (refine_samples - 1) // 2
+    offsets = np.linspace(-1.0, 1.0, refine_samples)
+    for start in range(0, hit.size, chunk):
+        rows = hit[start : start + chunk]
+        n = len(rows)
+        ar = np.arange(n)
+        d = dirs[rows]
+        t = np.minimum(t0[rows, None] + step_mm * np.arange(K)[None, :], t1[rows, None])
+        eps = max(0.5 * lip * step_mm, accept_px)
+        viol, sd, cost = _evaluate(origin, d, t, others, sd_fn, eps, tolerance_px, weight)
+        segment[rows] = np.isfinite(sd).sum(axis=1) * step_mm
+        # Best candidate, or (none) the sample closest to the hull.
+        has = np.isfinite(cost).any(axis=1)
+        k = np.where(has, np.argmin(cost, axis=1), np.argmin(viol, axis=1))
+        tbest = t[ar, k]
+        vbest = viol[ar, k]
+        sbest = sd[ar, k]
+        h = step_mm
+        for _ in range(refine_levels):
+            tt = tbest[:, None] + h * offsets[None, :]
+            eps = max(0.5 * lip * h / half, accept_px)
+            v2, s2, c2 = _evaluate(origin, d, tt, others, sd_fn, eps, tolerance_px, weight)
+            has = np.isfinite(c2).any(axis=1)
+            k2 = np.where(has, np.argmin(c2, axis=1), np.argmin(v2, axis=1))
+            tbest = tt[ar, k2]
+            vbest = v2[ar, k2]
+            sbest = s2[ar, k2]
+            h = h / half
+        ok = (vbest <= accept_px) & np.isfinite(sbest)
+        sel = rows[ok]
+        points[sel] = origin + tbest[ok, None] * d[ok]
+        deviation[sel] = sbest[ok]
+        valid[sel] = True
+    return points, deviation, segment, valid
+
+
+def select_on_surface(
+    points: np.ndarray,
+    sd: np.ndarray,
+    camera: Camera,
+    contour_mask: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """BCPS on the reconstruction's surface points (the ``surface`` method, the paper's).
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Reconstruction surface points, world mm.
+    sd : (N,) float
+        Their signed distance to the aligned reference, mm.
+    camera : Camera
+    contour_mask : (H, W) bool
+        The silhouette's contour pixels (object pixels with a background 4-neighbour).
+
+    Returns
+    -------
+    index : (P,) int
+        Selected point per contour pixel (indices into ``points``).
+    pixel : (P, 2) float
+        The contour pixel ``(u, v)``.
+    segment_mm : (P,) float
+        Depth extent of that pixel's candidates along the ray, mm.
+    deviation : (P,) float
+    """
+    uv, z = camera.project(points)
+    ui = np.rint(uv[:, 0]).astype(np.int64)
+    vi = np.rint(uv[:, 1]).astype(np.int64)
+    h, w = contour_mask.shape
+    ok = (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h) & (z > 0)
+    ok[ok] = contour_mask[vi[ok], ui[ok]]
+    idx = np.flatnonzero(ok)
+    if idx.size == 0:
+        return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    key = vi[idx] * w + ui[idx]
+    order = np.lexsort((sd[idx], key))  # by pixel, then by signed distance
+    key_sorted = key[order]
+    first = np.flatnonzero(np.r_[True, key_sorted[1:] != key_sorted[:-1]])
+    chosen = idx[order[first]]
+    zs = z[idx][order]
+    zmax = np.maximum.reduceat(zs, first)
+    zmin = np.minimum.reduceat(zs, first)
+    pix = np.stack([ui[chosen], vi[chosen]], axis=1).astype(float)
+    return chosen, pix, zmax - zmin, sd[chosen]

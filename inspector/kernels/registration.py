@@ -1,0 +1,681 @@
+"""Rigid registration of the CAD reference onto measured points, pure kernels.
+
+Two entry points, arrays in and an :class:`~inspector.model.Alignment` out:
+
+* :func:`align_reference` — global registration of the reference mesh onto the
+  visual-hull reconstruction, from any orientation, then a robust fine fit;
+* :func:`refine_on_points` — robust re-fit of an existing pose on points that
+  should lie on the reference surface (the BCPS points).
+
+Conventions (CONTRACT): millimetres; ``pose`` is the 4x4 homogeneous transform
+mapping reference coordinates to world coordinates, ``x_world = R @ x_ref + t``.
+
+Method
+------
+Distances are always measured to the exact reference triangles, with an Open3D
+:class:`open3d.t.geometry.RaycastingScene` built once in the reference frame
+re-centred on its bounding-box centre (this keeps the float32 queries precise).
+
+All fits are the same iteratively reweighted Gauss-Newton on se(3), vectorised
+over several candidate poses at once: each point's residual is its distance to
+the closest point of the posed reference, its gradient the direction to that
+point (the triangle normal on the surface), and the weights are Tukey's
+biweight.
+
+:func:`align_reference` first generates rotation hypotheses: the principal
+frames of the reconstruction and of the reference matched through the 24
+rotations of the cube group (all axis permutations and proper sign flips), the
+permutations restricted to axes of similar variance, and, where variances are
+nearly equal (the axes are then ill-defined), also turned by intermediate
+angles; plus the identity and one FPFH + RANSAC estimate
+(:func:`open3d.pipelines.registration.registration_ransac_based_on_feature_matching`).
+All start with the centroids matched and are fitted together on a coarse voxel
+subsample with successive halving: every few iterations the worse half, by the
+mean capped distance of the points to the posed reference, is dropped. The
+survivor is then fitted on a finer subsample and polished at full resolution
+with a Tukey cutoff that adapts to the data (``4.685 * 1.4826 * median |r|``)
+but never drops below a floor, so that gross outliers (visual-hull bulges,
+defects) have no influence once the fit has converged.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import open3d as o3d
+
+from inspector.model import Alignment
+
+__all__ = ["align_reference", "refine_on_points"]
+
+_REG = o3d.pipelines.registration
+
+#: Number of points aimed at in the coarse subsample (sets its voxel size).
+_COARSE_POINTS = 400
+#: Reference surface samples for the principal axes and the FPFH features.
+_REF_SAMPLES = 1500
+#: Variance ratio above which two principal axes are treated as interchangeable,
+#: and above which they are also sampled at intermediate angles.
+_SIMILAR = 0.7
+_DEGENERATE = 0.8
+#: Coarse search: Tukey cutoff and score cap in coarse voxels, iterations, point
+#: queries per iteration (all candidates together), and successive halving (every
+#: ``_PRUNE_EVERY`` iterations, down to ``_KEEP_MIN`` candidates).
+_COARSE_CUTOFF = 3.0
+_SCORE_CAP = 1.0
+_COARSE_ITERATIONS = 16
+_COARSE_BUDGET = 8000
+_PRUNE_EVERY = 2
+_KEEP_MIN = 3
+#: FPFH + RANSAC hypothesis: iteration cap and neighbours per feature.
+_RANSAC_ITERATIONS = 4000
+_FPFH_MAX_NN = 40
+#: Tukey efficiency constant and MAD -> sigma factor.
+_TUKEY_C = 4.685
+_MAD_SIGMA = 1.4826
+#: A Gauss-Newton fit stops when a step predicts less than this relative cost decrease.
+_REL_DECREASE = 1e-4
+#: Correspondences whose normals disagree more than this (cosine) are ignored.
+_NORMAL_COS = -0.5
+
+
+def _cube_group() -> np.ndarray:
+    """The 24 proper rotations mapping the coordinate axes onto themselves, (24, 3, 3)."""
+    mats = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            m = np.zeros((3, 3))
+            m[perm, np.arange(3)] = signs  # column i -> +-axis perm[i]
+            if np.linalg.det(m) > 0:
+                mats.append(m)
+    return np.array(mats)
+
+
+_CUBE_GROUP = _cube_group()
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _as_points(name: str, a: np.ndarray, *, min_rows: int = 1) -> np.ndarray:
+    arr = np.asarray(a, dtype=float)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
+    if arr.shape[0] < min_rows:
+        raise ValueError(f"{name} needs at least {min_rows} rows, got {arr.shape[0]}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    return arr
+
+
+def _as_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    v = _as_points("ref_vertices", vertices, min_rows=3)
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] < 1:
+        raise ValueError(f"ref_faces must have shape (F, 3) with F >= 1, got {f.shape}")
+    if not np.issubdtype(f.dtype, np.integer):
+        if not (np.issubdtype(f.dtype, np.floating) and np.all(np.isfinite(f)) and np.all(f == np.round(f))):
+            raise ValueError("ref_faces must hold integer vertex indices")
+    f = f.astype(np.int64)
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"ref_faces indices must lie in [0, {len(v) - 1}], got [{f.min()}, {f.max()}]")
+    return v, f
+
+
+def _as_pose(pose: np.ndarray) -> np.ndarray:
+    p = np.asarray(pose, dtype=float)
+    if p.shape != (4, 4):
+        raise ValueError(f"pose must have shape (4, 4), got {p.shape}")
+    if not np.all(np.isfinite(p)):
+        raise ValueError("pose contains NaN or infinite values")
+    R = p[:3, :3]
+    if not np.allclose(p[3], [0.0, 0.0, 0.0, 1.0], atol=1e-9):
+        raise ValueError(f"pose last row must be [0, 0, 0, 1], got {p[3].tolist()}")
+    if not (np.allclose(R @ R.T, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
+        raise ValueError("pose[:3, :3] must be a proper rotation matrix")
+    return p
+
+
+def _positive(name: str, x: float) -> float:
+    x = float(x)
+    if not np.isfinite(x) or x <= 0:
+        raise ValueError(f"{name} must be a finite positive number, got {x}")
+    return x
+
+
+# --------------------------------------------------------------------------- geometry helpers
+
+
+def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+def _inverse(T: np.ndarray) -> np.ndarray:
+    R = T[:3, :3]
+    return _rigid(R.T, -R.T @ T[:3, 3])
+
+
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    """Rotation vectors (..., 3) -> rotation matrices (..., 3, 3)."""
+    theta = np.linalg.norm(w, axis=-1)
+    k = w / np.where(theta > 0, theta, 1.0)[..., None]
+    K = np.zeros(w.shape[:-1] + (3, 3))
+    K[..., 0, 1], K[..., 0, 2] = -k[..., 2], k[..., 1]
+    K[..., 1, 0], K[..., 1, 2] = k[..., 2], -k[..., 0]
+    K[..., 2, 0], K[..., 2, 1] = -k[..., 1], k[..., 0]
+    s, c = np.sin(theta)[..., None, None], np.cos(theta)[..., None, None]
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+
+
+def _orthonormalize(R: np.ndarray) -> np.ndarray:
+    """Nearest proper rotations to (..., 3, 3) matrices."""
+    u, _, vt = np.linalg.svd(R)
+    d = np.sign(np.linalg.det(u @ vt))
+    u[..., :, 2] *= d[..., None]
+    return u @ vt
+
+
+def _principal_frame(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Principal axes of ``x`` (N, 3): eigenvectors as columns (det +1) and variances, decreasing."""
+    vals, vecs = np.linalg.eigh(np.cov(x, rowvar=False))
+    E = vecs[:, ::-1].copy()
+    if np.linalg.det(E) < 0:
+        E[:, 2] = -E[:, 2]
+    return E, np.maximum(vals[::-1], 0.0)
+
+
+def _cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometry.PointCloud:
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, dtype=float)))
+    if normals is not None:
+        pc.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, dtype=float))
+    return pc
+
+
+def _subsample(pc: o3d.geometry.PointCloud, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Voxel-grid average of a cloud with normals: points (M, 3) and unit normals (M, 3)."""
+    sub = pc.voxel_down_sample(voxel)
+    sub.normalize_normals()
+    return np.asarray(sub.points), np.asarray(sub.normals)
+
+
+class _Reference:
+    """The reference mesh re-centred on its bounding-box centre, with a raycasting scene.
+
+    ``x_ref = x_internal + centre``. Poses handled internally are ``W``: world ->
+    internal frame, (4, 4), the inverse of the internal pose.
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
+        self.vertices = vertices - self.centre
+        self.faces = faces
+        tri = self.vertices[faces]
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        dbl = np.linalg.norm(cross, axis=1)
+        self.face_areas = 0.5 * dbl
+        self.area = float(self.face_areas.sum())
+        if not self.area > 0:
+            raise ValueError("reference mesh has zero surface area")
+        self.face_normals = cross / np.where(dbl > 0, dbl, 1.0)[:, None]
+        self.diag = float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
+        mesh = o3d.t.geometry.TriangleMesh()
+        mesh.vertex.positions = o3d.core.Tensor(self.vertices.astype(np.float32))
+        mesh.triangle.indices = o3d.core.Tensor(faces.astype(np.int32))
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(mesh)
+
+    def pose_from_w(self, W: np.ndarray) -> np.ndarray:
+        """World -> internal transform -> reference -> world pose."""
+        return _inverse(W) @ _rigid(np.eye(3), -self.centre)
+
+    def w_from_pose(self, pose: np.ndarray) -> np.ndarray:
+        """Reference -> world pose -> world -> internal transform."""
+        return _inverse(pose @ _rigid(np.eye(3), self.centre))
+
+    def sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` area-uniform surface samples (internal frame) and their face normals."""
+        idx = rng.choice(len(self.faces), size=n, p=self.face_areas / self.area)
+        r1 = np.sqrt(rng.random(n))
+        r2 = rng.random(n)
+        tri = self.vertices[self.faces[idx]]
+        pts = (1 - r1)[:, None] * tri[:, 0] + (r1 * (1 - r2))[:, None] * tri[:, 1] + (r1 * r2)[:, None] * tri[:, 2]
+        return pts, self.face_normals[idx]
+
+    def distance(self, q: np.ndarray) -> np.ndarray:
+        """Unsigned distance of internal-frame points ``q`` (..., 3) to the surface, (...)."""
+        flat = np.ascontiguousarray(q.reshape(-1, 3), dtype=np.float32)
+        d = self.scene.compute_distance(o3d.core.Tensor(flat)).numpy()
+        return d.astype(float).reshape(q.shape[:-1])
+
+    def closest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Closest surface points (..., 3) and the normals (..., 3) of their triangles."""
+        flat = np.ascontiguousarray(q.reshape(-1, 3), dtype=np.float32)
+        ans = self.scene.compute_closest_points(o3d.core.Tensor(flat))
+        c = ans["points"].numpy().astype(float).reshape(q.shape)
+        ids = ans["primitive_ids"].numpy().astype(np.int64)
+        return c, self.face_normals[ids].reshape(q.shape)
+
+
+# --------------------------------------------------------------------------- robust Gauss-Newton
+
+
+def _tukey(r: np.ndarray, c: np.ndarray | float) -> np.ndarray:
+    u = r / c
+    return np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
+
+
+def _transform(W: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Apply K transforms (K, 4, 4) to points (N, 3) -> (K, N, 3)."""
+    return np.matmul(x[None], W[:, :3, :3].transpose(0, 2, 1)) + W[:, None, :3, 3]
+
+
+class _Step:
+    """One Gauss-Newton step of K candidate poses on the same points.
+
+    The Tukey cutoff of each candidate is ``4.685 * 1.4826 * median(r)`` clipped
+    to ``[floor, cutoff]``. With ``n_keep``, the candidates are first ranked by
+    their mean capped distance ``mean(min(r, cap))`` and only the best ``n_keep``
+    (in their original order) are kept and stepped.
+
+    Attributes
+    ----------
+    keep : (K',) int
+        Indices of the stepped candidates among the K given.
+    score : (K,) float
+        Mean capped distance of each given candidate, mm (only with ``n_keep``).
+    W : (K', 4, 4) float
+        Poses after the step (world -> internal).
+    cutoff : (K',) float
+        Tukey cutoff used, mm.
+    move : (K',) float
+        Weighted RMS motion of the points along their residual directions, mm.
+    cost : (K',) float
+        Weighted mean squared residual before the step, mm^2.
+    """
+
+    def __init__(
+        self,
+        ref: _Reference,
+        x: np.ndarray,
+        W: np.ndarray,
+        cutoff: np.ndarray,
+        floor: np.ndarray,
+        normals: np.ndarray | None,
+        *,
+        n_keep: int | None = None,
+        cap: float = np.inf,
+    ) -> None:
+        q = _transform(W, x)
+        c, n = ref.closest(q)
+        d = q - c
+        r = np.sqrt(np.sum(d * d, axis=2))
+        self.keep = np.arange(len(W))
+        if n_keep is not None:
+            self.score = np.minimum(r, cap).mean(axis=1)
+            if n_keep < len(W):
+                self.keep = np.sort(np.argsort(self.score, kind="stable")[:n_keep])
+                k = self.keep
+                W, q, n, d, r, cutoff, floor = W[k], q[k], n[k], d[k], r[k], cutoff[k], floor[k]
+        cutoff = np.maximum(floor, np.minimum(cutoff, _TUKEY_C * _MAD_SIGMA * np.median(r, axis=1)))
+        self.cutoff = cutoff
+        # Gradient of the distance field: direction from the closest point, or the
+        # triangle normal for points (numerically) on the surface.
+        on_surface = r <= 1e-6
+        g = np.where(on_surface[..., None], n, d / np.where(on_surface, 1.0, r)[..., None])
+        w = _tukey(r, cutoff[:, None])
+        if normals is not None:
+            nq = np.matmul(normals[None], W[:, :3, :3].transpose(0, 2, 1))
+            w = w * (np.sum(nq * n, axis=2) > _NORMAL_COS)
+        sw = w.sum(axis=1)
+        ok = sw > 0
+        sw = np.where(ok, sw, 1.0)
+        q0 = np.matmul(w[:, None, :], q)[:, 0] / sw[:, None]
+        lever = q - q0[:, None, :]
+        scale = np.sqrt(np.sum(w * np.sum(lever * lever, axis=2), axis=1) / sw)
+        scale = np.maximum(scale, 1e-9)
+        J = np.concatenate([np.cross(lever, g) / scale[:, None, None], g], axis=2)  # (K, N, 6)
+        Jw = J * w[..., None]
+        H = np.matmul(Jw.transpose(0, 2, 1), J)
+        b = np.matmul(Jw.transpose(0, 2, 1), r[..., None])[..., 0]
+        tr = np.trace(H, axis1=1, axis2=2)
+        H = H + np.eye(6) * (1e-9 * tr / 6.0 + 1e-12)[:, None, None]
+        xi = -np.linalg.solve(H, b[..., None])[..., 0]
+        xi[~ok] = 0.0
+        self.move = np.sqrt(np.maximum(np.sum(xi * np.matmul(H, xi[..., None])[..., 0], axis=1), 0.0) / sw)
+        self.cost = np.sum(w * r * r, axis=1) / sw
+        dR = _rodrigues(xi[:, :3] / scale[:, None])
+        D = np.zeros_like(W)
+        D[:, :3, :3] = dR
+        D[:, :3, 3] = q0 - np.matmul(dR, q0[..., None])[..., 0] + xi[:, 3:]
+        D[:, 3, 3] = 1.0
+        Wn = D @ W  # the step moves the points, in the reference frame, by D
+        Wn[:, :3, :3] = _orthonormalize(Wn[:, :3, :3])
+        self.W = Wn
+
+
+def _robust_fit(
+    ref: _Reference,
+    points: np.ndarray,
+    W: np.ndarray,
+    *,
+    floor_mm: float,
+    start_mm: float,
+    iterations: int,
+    tol: float,
+    normals: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Iteratively reweighted Gauss-Newton of points onto the reference surface.
+
+    Parameters
+    ----------
+    ref : _Reference
+    points : (N, 3) float
+        World points, mm.
+    W : (4, 4) float
+        Initial world -> internal-reference transform.
+    floor_mm, start_mm : float
+        Lowest and initial Tukey cutoff, mm. The cutoff follows
+        ``4.685 * 1.4826 * median |r|`` between these bounds, never increasing.
+    iterations : int
+        Maximum number of Gauss-Newton steps.
+    tol : float
+        Stop when a step moves the points by less than ``tol`` mm (weighted RMS
+        along their residual directions), or predicts a relative cost decrease
+        below ``_REL_DECREASE`` (sliding along a near-symmetry).
+    normals : (N, 3) float, optional
+        World unit normals of ``points``, used to reject wrong-side matches.
+
+    Returns
+    -------
+    W : (4, 4) float
+        Refined world -> internal transform.
+    dist : (N,) float
+        Final distance of each point to the posed reference, mm.
+    cutoff : float
+        Final Tukey cutoff, mm.
+    """
+    cutoff = max(start_mm, floor_mm)
+    Wk = W[None]
+    for _ in range(iterations):
+        step = _Step(ref, points, Wk, np.array([cutoff]), np.array([floor_mm]), normals)
+        Wk, cutoff = step.W, float(step.cutoff[0])
+        move, cost = float(step.move[0]), float(step.cost[0])
+        if move < tol or move * move < _REL_DECREASE * cost:
+            break
+    dist = ref.distance(_transform(Wk, points)[0])
+    return Wk[0], dist, cutoff
+
+
+def _summary(dist: np.ndarray, inlier_mm: float) -> tuple[float, float]:
+    inl = dist <= inlier_mm
+    fitness = float(np.mean(inl)) if len(dist) else 0.0
+    rmse = float(np.sqrt(np.mean(dist[inl] ** 2))) if np.any(inl) else 0.0
+    return fitness, rmse
+
+
+# --------------------------------------------------------------------------- global alignment
+
+
+def _rotation_hypotheses(xs: np.ndarray, xt: np.ndarray) -> np.ndarray:
+    """Candidate rotations world -> reference from matched principal frames, (K, 3, 3).
+
+    ``xs`` (N, 3) are world points, ``xt`` (M, 3) reference points, both roughly
+    uniform on the surface. The principal frames are matched through the rotations
+    of the cube group that only exchange axes of similar variance (ratio above
+    ``_SIMILAR``; the 4 sign flips always). Where variances are nearly equal
+    (ratio above ``_DEGENERATE``) the axes are ill-defined, so the candidates are
+    also turned by intermediate angles: about the distinct axis in 22.5 degree
+    steps when two variances are close, about each axis by 45 degrees when all
+    three are. The identity comes first.
+    """
+    Es, ls = _principal_frame(xs)
+    Et, lt = _principal_frame(xt)
+    lam = 0.5 * (ls + lt)  # decreasing
+
+    def close(i: int, j: int, ratio: float) -> bool:
+        return bool(lam[max(i, j)] >= ratio * lam[min(i, j)])
+
+    pairs = ((0, 1), (1, 2), (0, 2))
+    similar = np.eye(3, dtype=bool)
+    for i, j in pairs:
+        similar[i, j] = similar[j, i] = close(i, j, _SIMILAR)
+    target_axis = np.argmax(np.abs(_CUBE_GROUP), axis=1)  # (24, 3): axis each axis goes to
+    allowed = [G for G, ax in zip(_CUBE_GROUP, target_axis) if all(similar[i, ax[i]] for i in range(3))]
+    degenerate = [(i, j) for i, j in pairs if close(i, j, _DEGENERATE)]
+    offsets = [np.eye(3)]
+    if len(degenerate) >= 2:
+        offsets += [_rodrigues(np.eye(3)[a] * (np.pi / 4)) for a in range(3)]
+    elif len(degenerate) == 1:
+        axis = 3 - sum(degenerate[0])
+        offsets += [_rodrigues(np.eye(3)[axis] * (k * np.pi / 8)) for k in (1, 2, 3)]
+    rots = [np.eye(3)] + [Et @ G @ O @ Es.T for O in offsets for G in allowed]
+    return np.array(rots)
+
+
+def _ransac_hypothesis(
+    src: o3d.geometry.PointCloud, tgt: o3d.geometry.PointCloud, voxel: float, seed: int
+) -> np.ndarray | None:
+    """FPFH feature matching + RANSAC, world -> reference (4, 4), or None on failure."""
+    param = o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=_FPFH_MAX_NN)
+    fs = _REG.compute_fpfh_feature(src, param)
+    ft = _REG.compute_fpfh_feature(tgt, param)
+    o3d.utility.random.seed(int(seed))
+    res = _REG.registration_ransac_based_on_feature_matching(
+        src,
+        tgt,
+        fs,
+        ft,
+        False,
+        1.5 * voxel,
+        _REG.TransformationEstimationPointToPoint(False),
+        3,
+        [
+            _REG.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+            _REG.CorrespondenceCheckerBasedOnDistance(1.5 * voxel),
+        ],
+        _REG.RANSACConvergenceCriteria(_RANSAC_ITERATIONS, 0.999),
+    )
+    T = np.asarray(res.transformation, dtype=float)
+    if res.fitness > 0 and np.all(np.isfinite(T)) and np.allclose(T[3], [0, 0, 0, 1]):
+        return T
+    return None
+
+
+def _coarse_search(
+    ref: _Reference, x: np.ndarray, nx: np.ndarray, W: np.ndarray, voxel: float
+) -> np.ndarray:
+    """Fit all candidates (K, 4, 4) on the coarse points ``x``, halving them as they go.
+
+    Each iteration uses a regular subset of ``x`` of about
+    ``_COARSE_BUDGET / K`` points (all of them once few candidates are left);
+    every ``_PRUNE_EVERY`` iterations the worse half is dropped by the mean
+    distance of the points to the posed reference, each capped at
+    ``_SCORE_CAP * voxel``. Returns the best world -> internal transform (4, 4).
+    """
+    cap = _SCORE_CAP * voxel
+    cutoff = np.full(len(W), _COARSE_CUTOFF * voxel)
+    for it in range(_COARSE_ITERATIONS):
+        stride = max(1, int(np.ceil(len(x) * len(W) / _COARSE_BUDGET)))
+        prune = it > 0 and it % _PRUNE_EVERY == 0 and len(W) > _KEEP_MIN
+        n_keep = max(_KEEP_MIN, (len(W) + 1) // 2) if prune else None
+        step = _Step(ref, x[::stride], W, cutoff, cutoff, nx[::stride], n_keep=n_keep, cap=cap)
+        W, cutoff = step.W, cutoff[step.keep]
+        if len(W) <= _KEEP_MIN and float(step.move.max()) < 1e-3 * voxel:
+            break
+    step = _Step(ref, x, W, cutoff, cutoff, nx, n_keep=len(W), cap=cap)
+    return W[int(np.argmin(step.score))]
+
+
+def align_reference(
+    points: np.ndarray,
+    normals: np.ndarray,
+    ref_vertices: np.ndarray,
+    ref_faces: np.ndarray,
+    *,
+    voxel_mm: float = 1.0,
+    inlier_mm: float = 1.0,
+    seed: int = 0,
+) -> Alignment:
+    """Globally align the reference mesh onto a reconstruction.
+
+    Works from any initial orientation and translation (the centroids are matched
+    first); robust to the outward bulges of a visual hull, to local defects and
+    to a few percent of scale error. For symmetric parts one of the equivalent
+    poses is returned. Deterministic for a given ``seed``.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Reconstruction surface points, world mm (N >= 10).
+    normals : (N, 3) float
+        Outward normals of ``points`` (any non-zero length).
+    ref_vertices : (V, 3) float
+        Reference (CAD) mesh vertices in the reference frame, mm.
+    ref_faces : (F, 3) int
+        Triangles of the reference mesh, indices into ``ref_vertices``; the mesh
+        is expected to be watertight.
+    voxel_mm : float, default 1.0
+        Voxel size of the subsample used by the fine fit, mm; also the smallest
+        voxel of the coarse (hypothesis) subsample, which is otherwise sized to
+        hold about 400 points.
+    inlier_mm : float, default 1.0
+        Distance under which a point counts as an inlier for ``fitness`` and
+        ``rmse_mm``; also the initial Tukey cutoff of the fine fit, which then
+        adapts to the residuals down to no less than ``inlier_mm / 10``.
+    seed : int, default 0
+        Seed of the reference surface sampling and of the RANSAC hypothesis.
+
+    Returns
+    -------
+    Alignment
+        ``pose`` (4, 4) reference -> world; ``fitness`` the fraction of ``points``
+        within ``inlier_mm`` of the posed reference; ``rmse_mm`` the RMS distance
+        of those inliers, mm; ``method="global+icp"``.
+
+    Raises
+    ------
+    ValueError
+        On malformed shapes, non-finite values, zero normals, a degenerate mesh
+        or non-positive parameters.
+    """
+    pts = _as_points("points", points, min_rows=10)
+    nrm = _as_points("normals", normals)
+    if nrm.shape != pts.shape:
+        raise ValueError(f"normals must have the shape of points {pts.shape}, got {nrm.shape}")
+    nlen = np.linalg.norm(nrm, axis=1)
+    if np.any(nlen <= 0):
+        raise ValueError("normals contains zero-length vectors")
+    nrm = nrm / nlen[:, None]
+    verts, faces = _as_mesh(ref_vertices, ref_faces)
+    voxel_mm = _positive("voxel_mm", voxel_mm)
+    inlier_mm = _positive("inlier_mm", inlier_mm)
+
+    ref = _Reference(verts, faces)
+    rng = np.random.default_rng(seed)
+
+    # Coarse subsamples of the reconstruction and of the reference surface.
+    voxel_c = max(voxel_mm, float(np.sqrt(ref.area / _COARSE_POINTS)))
+    full = _cloud(pts, nrm)
+    xs, ns = _subsample(full, voxel_c)
+    if len(xs) < 10:
+        xs, ns = pts, nrm
+    xt, nt = _subsample(_cloud(*ref.sample(_REF_SAMPLES, rng)), voxel_c)
+
+    # Hypotheses (world -> internal reference), centroids matched.
+    rots = _rotation_hypotheses(xs, xt)
+    cs, ct = xs.mean(axis=0), xt.mean(axis=0)
+    W = np.zeros((len(rots), 4, 4))
+    W[:, :3, :3] = rots
+    W[:, :3, 3] = ct - rots @ cs
+    W[:, 3, 3] = 1.0
+    T_ransac = _ransac_hypothesis(_cloud(xs, ns), _cloud(xt, nt), voxel_c, seed)
+    if T_ransac is not None:
+        W = np.concatenate([W, T_ransac[None]])
+    best = _coarse_search(ref, xs, ns, W, voxel_c)
+
+    # Fine fit: converge on a voxel subsample, then polish at full resolution.
+    fpts, fnrm = _subsample(full, voxel_mm)
+    floor = inlier_mm / 10.0
+    cutoff = inlier_mm
+    tol = 1e-5 * ref.diag
+    if 10 <= len(fpts) <= len(pts) // 2:
+        best, _, cutoff = _robust_fit(
+            ref, fpts, best, floor_mm=floor, start_mm=cutoff, iterations=30, tol=tol, normals=fnrm
+        )
+    best, dist, _ = _robust_fit(ref, pts, best, floor_mm=floor, start_mm=cutoff, iterations=4, tol=tol, normals=nrm)
+    fitness, rmse = _summary(dist, inlier_mm)
+    return Alignment(pose=ref.pose_from_w(best), fitness=fitness, rmse_mm=rmse, method="global+icp")
+
+
+# --------------------------------------------------------------------------- refinement
+
+
+def refine_on_points(
+    points: np.ndarray,
+    ref_vertices: np.ndarray,
+    ref_faces: np.ndarray,
+    pose: np.ndarray,
+    *,
+    robust_mm: float = 0.3,
+    iterations: int = 20,
+) -> Alignment:
+    """Robustly re-fit the reference pose on points that lie on its surface.
+
+    Minimises ``sum_i rho(dist(p_i, pose(reference)))`` with Tukey's biweight
+    ``rho`` by iteratively reweighted Gauss-Newton on se(3), with exact closest
+    points on the reference triangles (queried in the reference frame after
+    mapping the points by the inverse pose). The Tukey cutoff starts at
+    ``max(robust_mm, 4.685 * 1.4826 * median distance)`` and shrinks with the
+    residuals down to ``robust_mm``, so points farther than ``robust_mm`` from
+    the converged surface (defects) have no influence.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        World points expected on the reference surface (e.g. BCPS points), mm;
+        N >= 6.
+    ref_vertices : (V, 3) float
+        Reference mesh vertices, reference frame, mm.
+    ref_faces : (F, 3) int
+        Reference triangles.
+    pose : (4, 4) float
+        Initial reference -> world pose (a proper rigid transform), close to the
+        solution (within about ``robust_mm`` and a degree).
+    robust_mm : float, default 0.3
+        Final Tukey cutoff, mm; also the inlier distance for ``fitness`` and
+        ``rmse_mm``.
+    iterations : int, default 20
+        Maximum Gauss-Newton iterations (stops earlier on convergence); 0 only
+        evaluates ``pose``.
+
+    Returns
+    -------
+    Alignment
+        Refined ``pose`` (4, 4); ``fitness`` the fraction of ``points`` within
+        ``robust_mm``; ``rmse_mm`` the RMS distance of those, mm;
+        ``method="bcps-refine"``.
+
+    Raises
+    ------
+    ValueError
+        On malformed shapes, non-finite values, an improper ``pose``, a
+        degenerate mesh or non-positive parameters.
+    """
+    pts = _as_points("points", points, min_rows=6)
+    verts, faces = _as_mesh(ref_vertices, ref_faces)
+    P = _as_pose(pose)
+    robust_mm = _positive("robust_mm", robust_mm)
+    if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 0:
+        raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
+
+    ref = _Reference(verts, faces)
+    W, dist, _ = _robust_fit(
+        ref, pts, ref.w_from_pose(P), floor_mm=robust_mm, start_mm=np.inf, iterations=int(iterations),
+        tol=1e-6 * ref.diag,
+    )
+    fitness, rmse = _summary(dist, robust_mm)
+    return Alignment(pose=ref.pose_from_w(W), fitness=fitness, rmse_mm=rmse, method="bcps-refine")

@@ -1,0 +1,122 @@
+"""The plugin manager: built by a factory, used only through typed methods.
+
+:func:`create_plugin_manager` adds the hookspecs, loads every plugin of the ``inspector``
+entry-point group (built-ins included: they are declared in this project's
+``pyproject.toml`` like any third-party plugin), honours a block list, and checks that every
+hook implementation matches a spec. The core never calls ``pm.hook`` directly: it calls
+the methods of :class:`PluginManager`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pluggy
+
+from inspector import hookspecs
+from inspector.registry import DriverRegistry, StageRegistry
+
+if TYPE_CHECKING:
+    from inspector.model import InspectionResult
+    from inspector.pipeline import InspectionContext
+    from inspector.registry import DriverSpec, StageSpec
+
+__all__ = ["ENTRY_POINT_GROUP", "BLOCK_ENV", "PluginManager", "create_plugin_manager"]
+
+ENTRY_POINT_GROUP = "inspector"
+#: Comma-separated entry-point names not to load, e.g. ``INSPECTOR_BLOCK_PLUGINS=my_plc``.
+BLOCK_ENV = "INSPECTOR_BLOCK_PLUGINS"
+
+
+class PluginManager:
+    """Typed façade over :class:`pluggy.PluginManager`.
+
+    Attributes
+    ----------
+    pm : pluggy.PluginManager
+        The underlying manager (for registering extra plugins in tests or apps).
+    """
+
+    def __init__(self, pm: pluggy.PluginManager) -> None:
+        self.pm = pm
+        self._stages: StageRegistry | None = None
+        self._drivers: DriverRegistry | None = None
+
+    # -- registries ----------------------------------------------------------------
+    def register(self, plugin: object, name: str | None = None) -> None:
+        """Register one more plugin (resets the cached registries)."""
+        self.pm.register(plugin, name=name)
+        self.pm.check_pending()
+        self._stages = self._drivers = None
+
+    @property
+    def stages(self) -> StageRegistry:
+        if self._stages is None:
+            reg = StageRegistry()
+            self.pm.hook.inspector_register_stages(registry=reg)
+            self._stages = reg
+        return self._stages
+
+    @property
+    def drivers(self) -> DriverRegistry:
+        if self._drivers is None:
+            reg = DriverRegistry()
+            self.pm.hook.inspector_register_drivers(registry=reg)
+            self._drivers = reg
+        return self._drivers
+
+    def plugin_names(self) -> list[str]:
+        return sorted(n for n, _ in self.pm.list_name_plugin())
+
+    # -- lifecycle -----------------------------------------------------------------
+    def before_stage(self, context: InspectionContext, stage: StageSpec, step: str) -> None:
+        self.pm.hook.inspector_before_stage(context=context, stage=stage, step=step)
+
+    def after_stage(self, context: InspectionContext, stage: StageSpec, step: str, seconds: float) -> None:
+        self.pm.hook.inspector_after_stage(context=context, stage=stage, step=step, seconds=seconds)
+
+    def on_stage_error(self, context: InspectionContext, stage: StageSpec, step: str, error: BaseException) -> None:
+        self.pm.hook.inspector_on_stage_error(context=context, stage=stage, step=step, error=error)
+
+    def on_result(self, result: InspectionResult, outdir: Path | None) -> None:
+        self.pm.hook.inspector_on_result(result=result, outdir=outdir)
+
+    # -- lookups used by recipes -----------------------------------------------------
+    def stage(self, name: str) -> StageSpec:
+        return self.stages[name]
+
+    def driver(self, name: str) -> DriverSpec:
+        return self.drivers[name]
+
+
+def create_plugin_manager(
+    *,
+    load_entrypoints: bool = True,
+    block: Iterable[str] | None = None,
+    plugins: Iterable[object] = (),
+) -> PluginManager:
+    """Build a fresh plugin manager.
+
+    Parameters
+    ----------
+    load_entrypoints : bool
+        Load the ``inspector`` entry-point group (built-ins and installed third-party plugins).
+    block : iterable of str, optional
+        Entry-point names not to load; defaults to ``$INSPECTOR_BLOCK_PLUGINS``.
+    plugins : iterable of objects
+        Extra plugins to register (tests, embedding applications).
+    """
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    blocked = set(block) if block is not None else {b.strip() for b in os.environ.get(BLOCK_ENV, "").split(",") if b.strip()}
+    for name in blocked:
+        pm.set_blocked(name)
+    if load_entrypoints:
+        pm.load_setuptools_entrypoints(ENTRY_POINT_GROUP)
+    for plugin in plugins:
+        pm.register(plugin)
+    pm.check_pending()
+    return PluginManager(pm)

@@ -1,0 +1,349 @@
+"""Data model: cameras, rigs, captures, and the results that flow between stages.
+
+Everything here is a frozen dataclass: stages never mutate what they receive, they
+return new values (see :mod:`inspector.runner`). Arrays are numpy, units are mm.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from inspector.kernels import camera as camk
+
+__all__ = [
+    "Camera",
+    "Rig",
+    "Truth",
+    "Capture",
+    "Silhouette",
+    "Reconstruction",
+    "Alignment",
+    "BcpsPoints",
+    "Defect",
+    "Evaluation",
+    "InspectionResult",
+]
+
+
+def _frozen(a: Any, shape: tuple[int, ...] | None = None) -> np.ndarray:
+    arr = np.array(a, dtype=float)
+    if shape is not None and arr.shape != shape:
+        raise ValueError(f"expected shape {shape}, got {arr.shape}")
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """One calibrated camera (OpenCV pinhole model, mm).
+
+    Attributes
+    ----------
+    name : str
+    width, height : int
+        Image size in pixels.
+    K : (3, 3) float
+    dist : (5,) float
+        ``[k1, k2, p1, p2, k3]``.
+    R : (3, 3) float
+        World -> camera rotation.
+    t : (3,) float
+        World -> camera translation, mm.
+    """
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray
+    dist: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "K", _frozen(self.K, (3, 3)))
+        d = np.zeros(5)
+        given = np.ravel(np.asarray(self.dist, float)) if self.dist is not None else np.zeros(0)
+        d[: min(5, given.size)] = given[:5]  # OpenCV order; missing terms are zero
+        object.__setattr__(self, "dist", _frozen(d, (5,)))
+        object.__setattr__(self, "R", _frozen(self.R, (3, 3)))
+        object.__setattr__(self, "t", _frozen(np.ravel(self.t), (3,)))
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Optical centre in world mm, (3,)."""
+        return camk.camera_centre(self.R, self.t)
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.dist))
+
+    def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World points (N, 3) -> pixels (N, 2) and depths (N,)."""
+        return camk.project(X, self.K, self.dist, self.R, self.t)
+
+    def rays(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels (N, 2) -> optical centre (3,) and unit world directions (N, 3)."""
+        return camk.pixel_rays(uv, self.K, self.dist, self.R, self.t)
+
+    def footprint_mm(self, point: np.ndarray | None = None) -> float:
+        """Size of one pixel, in mm, at ``point`` (default: the world origin)."""
+        p = np.zeros(3) if point is None else np.asarray(point, float)
+        z = float((self.R @ p + self.t)[2])
+        return z / float(np.sqrt(self.K[0, 0] * self.K[1, 1]))
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "width": int(self.width),
+            "height": int(self.height),
+            "K": self.K.tolist(),
+            "dist": self.dist.tolist(),
+            "R": self.R.tolist(),
+            "t": self.t.tolist(),
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    """The cameras of one rig, in a fixed order."""
+
+    cameras: tuple[Camera, ...]
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "cameras", tuple(self.cameras))
+
+    def __len__(self) -> int:
+        return len(self.cameras)
+
+    def __iter__(self):
+        return iter(self.cameras)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.cameras)
+
+    def camera(self, name: str) -> Camera:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise KeyError(name)
+
+    def footprint_mm(self) -> float:
+        """Median pixel footprint at the rig centre, mm."""
+        return float(np.median([c.footprint_mm() for c in self.cameras]))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"units": "mm", "cameras": [c.to_json() for c in self.cameras]}
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """Ground truth of a simulated capture (``truth/`` in a capture folder).
+
+    Attributes
+    ----------
+    mesh_path : Path or None
+        ``truth/part.ply``: the true surface in world mm.
+    info : mapping
+        ``truth/truth.json``: true pose, scale, defects.
+    vertices, faces : arrays or None
+        The true surface when held in memory (simulated captures not written to disk).
+    """
+
+    mesh_path: Path | None
+    info: Mapping[str, Any] = field(default_factory=dict)
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
+
+    def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(V, 3) vertices and (F, 3) faces of the true surface, or None when unknown."""
+        if self.vertices is not None and self.faces is not None:
+            return self.vertices, self.faces
+        if self.mesh_path is not None and Path(self.mesh_path).is_file():
+            import trimesh
+
+            m = trimesh.load(self.mesh_path, force="mesh", process=False)
+            return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
+        return None
+
+
+@dataclass(frozen=True, eq=False)
+class Capture:
+    """One trigger of the rig.
+
+    Attributes
+    ----------
+    name : str
+        Capture identifier (the folder name for replayed captures).
+    rig : Rig
+    images : Mapping[str, np.ndarray]
+        Camera name -> image (H, W) or (H, W, C), uint8 or uint16.
+    backgrounds : Mapping[str, np.ndarray]
+        Camera name -> image of the empty rig (may be empty).
+    polarity : str
+        ``"dark-object"`` or ``"bright-object"``.
+    metadata : Mapping[str, Any]
+        Extra keys of ``capture.json``.
+    source : Path | None
+        Folder the capture was read from.
+    truth : Truth | None
+    """
+
+    name: str
+    rig: Rig
+    images: Mapping[str, np.ndarray]
+    backgrounds: Mapping[str, np.ndarray] = field(default_factory=dict)
+    polarity: str = "dark-object"
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+    source: Path | None = None
+    truth: Truth | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Silhouette:
+    """Segmentation of one camera image.
+
+    Attributes
+    ----------
+    camera : str
+    mask : (H, W) bool
+        True on the object.
+    soft : (H, W) float32
+        Object coverage in [0, 1] estimated from the grey levels; its 0.5 level is the
+        sub-pixel contour.
+    contour : (M, 2) float
+        Sub-pixel contour points ``(u, v)`` spaced about one pixel apart, excluding
+        points on the image border.
+    touches_border : bool
+        The silhouette reaches the image border: outside the image is unknown, not empty.
+    """
+
+    camera: str
+    mask: np.ndarray
+    soft: np.ndarray
+    contour: np.ndarray
+    touches_border: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """Visual hull of the silhouettes.
+
+    Attributes
+    ----------
+    points : (N, 3) float
+        Surface points, world mm.
+    normals : (N, 3) float
+        Outward unit normals.
+    vertices, faces : (V, 3) float, (F, 3) int
+        Display mesh.
+    voxel_mm : float
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    vertices: np.ndarray
+    faces: np.ndarray
+    voxel_mm: float
+
+
+@dataclass(frozen=True, eq=False)
+class Alignment:
+    """Pose of the reference in the rig frame.
+
+    Attributes
+    ----------
+    pose : (4, 4) float
+        Reference -> world transform.
+    fitness : float
+        Fraction of reconstruction points within the inlier distance.
+    rmse_mm : float
+    method : str
+    """
+
+    pose: np.ndarray
+    fitness: float
+    rmse_mm: float
+    method: str = ""
+
+
+@dataclass(frozen=True, eq=False)
+class BcpsPoints:
+    """Best-case coherent points, one per contour point per camera.
+
+    Attributes
+    ----------
+    points : (N, 3) float
+        World mm.
+    deviation : (N,) float
+        Signed distance to the aligned reference, mm (negative inside).
+    camera : (N,) int
+        Index of the camera in the rig.
+    pixel : (N, 2) float
+        Contour point ``(u, v)`` the ray went through.
+    segment_mm : (N,) float
+        Length of the candidate segment on that ray, mm.
+    method : str
+        ``"ray"`` or ``"surface"``.
+    """
+
+    points: np.ndarray
+    deviation: np.ndarray
+    camera: np.ndarray
+    pixel: np.ndarray
+    segment_mm: np.ndarray
+    method: str
+
+
+@dataclass(frozen=True)
+class Defect:
+    """A cluster of points outside tolerance."""
+
+    kind: str  # "missing" or "excess"
+    position: tuple[float, float, float]
+    extent: tuple[float, float, float]
+    n_points: int
+    worst_mm: float
+    region: str
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "kind": self.kind,
+            "position": list(self.position),
+            "extent": list(self.extent),
+            "n_points": self.n_points,
+            "worst_mm": self.worst_mm,
+            "region": self.region,
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Evaluation:
+    """Tolerance verdict of one part."""
+
+    verdict: str  # "pass" | "fail"
+    stats: Mapping[str, Any]
+    defects: tuple[Defect, ...]
+    out_of_tolerance: np.ndarray  # (N,) bool, per BCPS point
+
+
+@dataclass(frozen=True, eq=False)
+class InspectionResult:
+    """Everything one inspection produced; what the outputs write."""
+
+    capture: str
+    recipe: str
+    verdict: str  # "pass" | "fail" | "error"
+    error: str | None
+    timings_s: Mapping[str, float]
+    pose: np.ndarray | None = None
+    stats: Mapping[str, Any] = field(default_factory=dict)
+    defects: tuple[Defect, ...] = ()
+    reconstruction: Reconstruction | None = None
+    bcps: BcpsPoints | None = None
+    rig: Rig | None = None

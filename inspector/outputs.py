@@ -1,0 +1,158 @@
+"""Result outputs (CONTRACT): ``result.json``, ``bcps_points.ply``, ``reconstruction.ply``.
+
+One folder per capture, ``OUTDIR/<capture name>/``. Files are written to a temporary name
+and renamed, so a reader never sees half a file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from inspector.model import InspectionResult
+
+__all__ = ["write_result", "result_to_json", "write_ply", "read_ply", "one_line"]
+
+BCPS_PLY = "bcps_points.ply"
+RECON_PLY = "reconstruction.ply"
+RECON_MESH_PLY = "reconstruction_mesh.ply"
+
+
+def _clean(value: Any) -> Any:
+    """JSON-safe copy: numpy to Python, non-finite floats to None."""
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _clean(value.tolist())
+    if isinstance(value, (np.floating, float)):
+        f = float(value)
+        return f if math.isfinite(f) else None
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    return value
+
+
+def result_to_json(result: InspectionResult, *, with_points: bool) -> dict[str, Any]:
+    """The CONTRACT ``result.json`` document."""
+    return _clean(
+        {
+            "capture": result.capture,
+            "recipe": result.recipe,
+            "verdict": result.verdict,
+            "error": result.error,
+            "timings_s": dict(result.timings_s),
+            "pose": result.pose if result.pose is not None else None,
+            "stats": dict(result.stats),
+            "defects": [d.to_json() for d in result.defects],
+            "points": {
+                "bcps": BCPS_PLY if with_points and result.bcps is not None else None,
+                "reconstruction": RECON_PLY if with_points and result.reconstruction is not None else None,
+            },
+        }
+    )
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def write_ply(path: Path, columns: dict[str, np.ndarray], faces: np.ndarray | None = None) -> None:
+    """Write a binary PLY whose vertex element has one property per column.
+
+    Parameters
+    ----------
+    columns : dict of name -> (N,) array
+        ``x``, ``y``, ``z`` first; dtypes are kept (float32 recommended).
+    faces : (F, 3) int, optional
+    """
+    import io
+
+    from plyfile import PlyData, PlyElement
+
+    n = len(next(iter(columns.values())))
+    vert = np.empty(n, dtype=[(k, np.asarray(v).dtype.str) for k, v in columns.items()])
+    for k, v in columns.items():
+        vert[k] = v
+    elements = [PlyElement.describe(vert, "vertex")]
+    if faces is not None:
+        f = np.empty(len(faces), dtype=[("vertex_indices", "i4", (3,))])
+        f["vertex_indices"] = faces
+        elements.append(PlyElement.describe(f, "face"))
+    buf = io.BytesIO()
+    PlyData(elements, text=False).write(buf)
+    _atomic_write(path, buf.getvalue())
+
+
+def read_ply(path: Path) -> dict[str, np.ndarray]:
+    """The vertex properties of a PLY file, as arrays by name."""
+    from plyfile import PlyData
+
+    v = PlyData.read(str(path))["vertex"].data
+    return {name: np.asarray(v[name]) for name in v.dtype.names}
+
+
+def write_result(result: InspectionResult, outdir: Path, *, reference: Any = None, trace: str | None = None) -> Path:
+    """Write one capture's result folder and return it."""
+    folder = Path(outdir) / result.capture
+    folder.mkdir(parents=True, exist_ok=True)
+    for stale in (BCPS_PLY, RECON_PLY, RECON_MESH_PLY, "traceback.txt"):
+        (folder / stale).unlink(missing_ok=True)
+    if result.bcps is not None:
+        b = result.bcps
+        cols: dict[str, np.ndarray] = {
+            "x": b.points[:, 0].astype(np.float32),
+            "y": b.points[:, 1].astype(np.float32),
+            "z": b.points[:, 2].astype(np.float32),
+            "deviation": b.deviation.astype(np.float32),
+            "camera": b.camera.astype(np.int16),
+            "u": b.pixel[:, 0].astype(np.float32),
+            "v": b.pixel[:, 1].astype(np.float32),
+            "segment_mm": b.segment_mm.astype(np.float32),
+        }
+        write_ply(folder / BCPS_PLY, cols)
+    if result.reconstruction is not None:
+        r = result.reconstruction
+        write_ply(
+            folder / RECON_PLY,
+            {
+                "x": r.points[:, 0].astype(np.float32),
+                "y": r.points[:, 1].astype(np.float32),
+                "z": r.points[:, 2].astype(np.float32),
+                "nx": r.normals[:, 0].astype(np.float32),
+                "ny": r.normals[:, 1].astype(np.float32),
+                "nz": r.normals[:, 2].astype(np.float32),
+            },
+        )
+        if len(r.faces):
+            v = r.vertices.astype(np.float32)
+            write_ply(folder / RECON_MESH_PLY, {"x": v[:, 0], "y": v[:, 1], "z": v[:, 2]}, faces=r.faces)
+    if trace:
+        (folder / "traceback.txt").write_text(trace, encoding="utf-8")
+    doc = result_to_json(result, with_points=True)
+    _atomic_write(folder / "result.json", (json.dumps(doc, indent=2) + "\n").encode())
+    return folder
+
+
+def one_line(result: InspectionResult) -> str:
+    """A progress/summary line for one result."""
+    if result.verdict == "error":
+        return f"{result.capture}: ERROR {result.error}"
+    s = result.stats
+    dev = ""
+    if "deviation_mm" in s:
+        d = s["deviation_mm"]
+        dev = f"  deviation mean {d['mean']:+.4f} min {d['min']:+.4f} max {d['max']:+.4f} mm"
+    n = len(result.defects)
+    defects = f"  {n} defect{'s' if n != 1 else ''}" if n else ""
+    return f"{result.capture}: {result.verdict.upper()}{dev}{defects}  ({result.timings_s.get('total', 0.0):.2f} s)"

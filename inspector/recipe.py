@@ -1,0 +1,235 @@
+"""Recipes: TOML files that name the driver, the ordered stages and the tolerances.
+
+A recipe is validated completely when it is loaded (every table, key, type, range, stage
+name, stage order and file), and refused with one :class:`~inspector.errors.RecipeError`
+naming the file and the key. A loaded :class:`Recipe` cannot fail half-way for
+configuration reasons.
+
+Layout::
+
+    [recipe]
+    name = "cube-30"
+    reference = "parts/cube_30.stl"     # or "builtin:cube30"; relative to the recipe
+    [driver]
+    use = "replay"
+    params = {}
+    [[stages]]
+    name = "segment"                    # optional; defaults to the stage's kind
+    use = "segment.threshold"
+    params = { polarity = "auto" }
+    ...
+    [tolerance]
+    default = { lower = -0.1, upper = 0.1 }
+    [[tolerance.regions]]
+    name = "flange"
+    box_min = [-15, -15, 10]
+    box_max = [15, 15, 15]
+    lower = -0.05
+    upper = 0.05
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from inspector.errors import RecipeError
+from inspector.params import build_params
+from inspector.pipeline import Band, Region, Tolerance
+from inspector.registry import DriverSpec, StageSpec
+
+__all__ = ["Step", "DriverStep", "Recipe", "load_recipe", "parse_recipe"]
+
+
+@dataclass(frozen=True)
+class Step:
+    """One stage of a recipe: its name in the recipe, its spec and validated params."""
+
+    name: str
+    spec: StageSpec
+    params: Any
+
+
+@dataclass(frozen=True)
+class DriverStep:
+    spec: DriverSpec
+    params: Any
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """A validated recipe.
+
+    Attributes
+    ----------
+    name : str
+    path : Path or None
+    reference : str or None
+        ``builtin:NAME`` or an absolute path to the reference mesh.
+    driver : DriverStep
+    steps : tuple of Step
+    tolerance : Tolerance
+    """
+
+    name: str
+    path: Path | None
+    reference: str | None
+    driver: DriverStep
+    steps: tuple[Step, ...]
+    tolerance: Tolerance
+
+
+def _table(value: Any, where: str) -> Mapping[str, Any]:
+    if not isinstance(value, Mapping):
+        raise RecipeError(f"{where}: expected a table, got {value!r}")
+    return value
+
+
+def _only(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
+    extra = sorted(set(table) - allowed)
+    if extra:
+        raise RecipeError(f"{where}: unknown key {extra[0]!r} (expected {', '.join(sorted(allowed))})")
+
+
+def _number(table: Mapping[str, Any], key: str, where: str) -> float:
+    if key not in table:
+        raise RecipeError(f"{where}: missing key {key!r}")
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise RecipeError(f"{where}.{key}: expected a number, got {v!r}")
+    return float(v)
+
+
+def _band(table: Mapping[str, Any], where: str) -> Band:
+    lower, upper = _number(table, "lower", where), _number(table, "upper", where)
+    if not lower <= 0 <= upper:
+        raise RecipeError(f"{where}: expected lower <= 0 <= upper, got lower={lower}, upper={upper}")
+    return Band(lower, upper)
+
+
+def _vec3(table: Mapping[str, Any], key: str, where: str) -> tuple[float, float, float]:
+    v = table.get(key)
+    if not isinstance(v, list) or len(v) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+        raise RecipeError(f"{where}.{key}: expected 3 numbers, got {v!r}")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _tolerance(raw: Any, where: str) -> Tolerance:
+    if raw is None:
+        return Tolerance()
+    t = _table(raw, where)
+    _only(t, {"default", "regions"}, where)
+    default = _band(_table(t["default"], f"{where}.default"), f"{where}.default") if "default" in t else Tolerance().default
+    regions = []
+    raw_regions = t.get("regions", [])
+    if not isinstance(raw_regions, list):
+        raise RecipeError(f"{where}.regions: expected an array of tables")
+    for i, r in enumerate(raw_regions):
+        w = f"{where}.regions[{i}]"
+        r = _table(r, w)
+        _only(r, {"name", "box_min", "box_max", "lower", "upper"}, w)
+        name = r.get("name")
+        if not isinstance(name, str) or not name:
+            raise RecipeError(f"{w}.name: expected a non-empty string")
+        lo, hi = _vec3(r, "box_min", w), _vec3(r, "box_max", w)
+        if any(a > b for a, b in zip(lo, hi)):
+            raise RecipeError(f"{w}: box_min must be <= box_max")
+        regions.append(Region(name, lo, hi, _band(r, w)))
+    return Tolerance(default, tuple(regions))
+
+
+def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, reference: str | None = None) -> Recipe:
+    """Validate a parsed TOML document against the registered stages and drivers.
+
+    Parameters
+    ----------
+    data : mapping
+        The TOML document.
+    pm : inspector.manager.PluginManager
+    path : Path, optional
+        The recipe file (for messages and relative paths).
+    reference : str, optional
+        Overrides ``recipe.reference`` (the ``--reference`` option).
+    """
+    label = path.name if path is not None else "<recipe>"
+    base = path.parent if path is not None else Path.cwd()
+    _only(data, {"recipe", "driver", "stages", "tolerance"}, label)
+
+    head = _table(data.get("recipe", {}), f"{label}: recipe")
+    _only(head, {"name", "reference", "description"}, f"{label}: recipe")
+    name = head.get("name", path.stem if path else "recipe")
+    if not isinstance(name, str):
+        raise RecipeError(f"{label}: recipe.name: expected a string")
+
+    ref = reference if reference is not None else head.get("reference")
+    if ref is not None:
+        if not isinstance(ref, str) or not ref:
+            raise RecipeError(f"{label}: recipe.reference: expected a file path or builtin:NAME")
+        if not ref.startswith("builtin:"):
+            p = Path(ref).expanduser()
+            if reference is None and not p.is_absolute():
+                p = base / p
+            if not p.is_file():
+                where = "--reference" if reference is not None else f"{label}: recipe.reference"
+                raise RecipeError(f"{where}: file not found: {p}")
+            ref = str(p.resolve())
+
+    drv = _table(data.get("driver", {"use": "replay"}), f"{label}: driver")
+    _only(drv, {"use", "params"}, f"{label}: driver")
+    use = drv.get("use", "replay")
+    if use not in pm.drivers:
+        raise RecipeError(f"{label}: driver.use: unknown driver {use!r} (known: {', '.join(pm.drivers.names())})")
+    dspec: DriverSpec = pm.drivers[use]
+    driver = DriverStep(dspec, build_params(dspec.params, drv.get("params"), f"{label}: driver.params"))
+
+    raw_stages = data.get("stages")
+    if not isinstance(raw_stages, list) or not raw_stages:
+        raise RecipeError(f"{label}: stages: expected at least one [[stages]] table")
+    steps: list[Step] = []
+    seen_kinds: set[str] = set()
+    seen_names: set[str] = set()
+    for i, raw in enumerate(raw_stages):
+        w = f"{label}: stages[{i}]"
+        st = _table(raw, w)
+        _only(st, {"name", "use", "params"}, w)
+        use = st.get("use")
+        if not isinstance(use, str):
+            raise RecipeError(f"{w}.use: expected a stage name like 'carve.hull'")
+        if use not in pm.stages:
+            raise RecipeError(f"{w}.use: unknown stage {use!r} (known: {', '.join(pm.stages.names())})")
+        spec: StageSpec = pm.stages[use]
+        sname = st.get("name", spec.kind)
+        if not isinstance(sname, str) or not sname:
+            raise RecipeError(f"{w}.name: expected a non-empty string")
+        if sname in seen_names:
+            raise RecipeError(f"{w}.name: stage name {sname!r} is used twice")
+        w = f"{label}: stages.{sname}"
+        missing = [k for k in spec.requires if k not in seen_kinds]
+        if missing:
+            raise RecipeError(f"{w}: {use} needs a {missing[0]!r} stage before it")
+        params = build_params(spec.params, st.get("params"), f"{w}.params")
+        steps.append(Step(sname, spec, params))
+        seen_names.add(sname)
+        seen_kinds.add(spec.kind)
+    tol = _tolerance(data.get("tolerance"), f"{label}: tolerance")
+    if any(s.spec.kind in ("align", "bcps", "evaluate") for s in steps) and ref is None:
+        raise RecipeError(f"{label}: recipe.reference: no reference mesh (set it in the recipe or pass --reference)")
+    return Recipe(name, path, ref, driver, tuple(steps), tol)
+
+
+def load_recipe(path: str | Path, pm: Any, *, reference: str | None = None) -> Recipe:
+    """Read and validate a recipe file; raises RecipeError naming the file and key."""
+    p = Path(path)
+    if not p.is_file():
+        raise RecipeError(f"{p}: recipe file not found")
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError:
+        raise RecipeError(f"{p.name}: not a UTF-8 text file") from None
+    except tomllib.TOMLDecodeError as e:
+        raise RecipeError(f"{p.name}: not valid TOML ({e})") from None
+    return parse_recipe(data, pm, path=p, reference=reference)
+

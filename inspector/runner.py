@@ -1,0 +1,178 @@
+"""Run a recipe on captures: every stage timed, every capture isolated from the others.
+
+A capture that cannot be inspected becomes a result with verdict ``"error"`` and a one-line
+reason; the batch goes on. Unexpected exceptions (bugs) are reported the same way, with the
+traceback written to ``traceback.txt`` in that capture's result folder, never to the user.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from inspector.errors import InspectorError
+from inspector.model import Capture, InspectionResult
+from inspector.pipeline import InspectionContext
+from inspector.recipe import Recipe
+from inspector.reference import Reference
+from inspector.registry import Acquisition
+
+__all__ = ["Outcome", "inspect_capture", "run_batch", "exit_status"]
+
+
+@dataclass(frozen=True, eq=False)
+class Outcome:
+    """One inspected (or failed) capture: its result, the final context, and a traceback."""
+
+    result: InspectionResult
+    context: InspectionContext | None
+    trace: str | None = None
+
+
+def _summary(ctx: InspectionContext) -> dict[str, Any]:
+    stats: dict[str, Any] = {}
+    if ctx.silhouettes is not None:
+        stats["border_cameras"] = [s.camera for s in ctx.silhouettes if s.touches_border]
+    if ctx.reconstruction is not None:
+        stats["reconstruction_points"] = int(len(ctx.reconstruction.points))
+        stats["voxel_mm"] = float(ctx.reconstruction.voxel_mm)
+    if ctx.alignment is not None:
+        stats["alignment"] = {
+            "method": ctx.alignment.method,
+            "fitness": float(ctx.alignment.fitness),
+            "rmse_mm": float(ctx.alignment.rmse_mm),
+        }
+    if ctx.evaluation is not None:
+        stats.update(ctx.evaluation.stats)
+    if ctx.capture.truth is not None:
+        from inspector.truth import truth_stats
+
+        t = truth_stats(
+            ctx.capture,
+            ctx.bcps.points if ctx.bcps is not None else None,
+            ctx.reconstruction.points if ctx.reconstruction is not None else None,
+        )
+        if t is not None:
+            stats["truth"] = t
+    return stats
+
+
+def inspect_capture(
+    capture: Capture,
+    recipe: Recipe,
+    reference: Reference | None,
+    pm: Any,
+    *,
+    on_stage: Callable[[str], None] | None = None,
+    load_s: float | None = None,
+) -> Outcome:
+    """Run every stage of ``recipe`` on ``capture``.
+
+    Returns
+    -------
+    Outcome
+        Verdict ``"pass"``/``"fail"`` from the evaluate stage (``"pass"`` when the recipe has
+        none), or ``"error"`` with a one-line reason naming the stage.
+    """
+    ctx = InspectionContext(capture=capture, reference=reference, tolerance=recipe.tolerance)
+    timings: dict[str, float] = {} if load_s is None else {"load": load_s}
+    # "total" includes the time spent reading the capture, when known.
+    t_start = time.perf_counter() - (load_s or 0.0)
+    for step in recipe.steps:
+        if on_stage is not None:
+            on_stage(step.name)
+        pm.before_stage(ctx, step.spec, step.name)
+        t0 = time.perf_counter()
+        try:
+            new = step.spec.run(ctx, step.params)
+        except Exception as exc:  # noqa: BLE001 - one capture must never stop the batch
+            timings[step.name] = time.perf_counter() - t0
+            timings["total"] = time.perf_counter() - t_start
+            pm.on_stage_error(ctx, step.spec, step.name, exc)
+            if isinstance(exc, InspectorError):
+                reason, trace = f"{step.name}: {exc}", None
+            else:
+                reason = f"{step.name}: internal error {type(exc).__name__}: {' '.join(str(exc).split())}"
+                trace = traceback.format_exc()
+            return Outcome(_error_result(capture.name, recipe, reason, timings, capture), ctx, trace)
+        timings[step.name] = time.perf_counter() - t0
+        ctx = new
+        pm.after_stage(ctx, step.spec, step.name, timings[step.name])
+    timings["total"] = time.perf_counter() - t_start
+    ev = ctx.evaluation
+    pose = ctx.alignment.pose if ctx.alignment is not None else None
+    result = InspectionResult(
+        capture=capture.name,
+        recipe=recipe.name,
+        verdict=ev.verdict if ev is not None else "pass",
+        error=None,
+        timings_s=timings,
+        pose=pose,
+        stats=_summary(ctx),
+        defects=ev.defects if ev is not None else (),
+        reconstruction=ctx.reconstruction,
+        bcps=ctx.bcps,
+        rig=capture.rig,
+    )
+    return Outcome(result, ctx)
+
+
+def _error_result(name: str, recipe: Recipe, reason: str, timings: dict[str, float], capture: Capture | None = None) -> InspectionResult:
+    return InspectionResult(
+        capture=name,
+        recipe=recipe.name,
+        verdict="error",
+        error=reason,
+        timings_s=timings,
+        rig=capture.rig if capture is not None else None,
+    )
+
+
+def run_batch(
+    recipe: Recipe,
+    acquisitions: Iterable[Acquisition],
+    pm: Any,
+    *,
+    reference: Reference | None,
+    outdir: Path | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Iterator[Outcome]:
+    """Inspect every acquisition in this process; yield one :class:`Outcome` each.
+
+    Outputs are written (when ``outdir`` is given) and ``inspector_on_result`` is called
+    before each outcome is yielded, so nothing is lost if a later capture fails.
+    """
+    from inspector import outputs
+
+    for acq in acquisitions:
+        t0 = time.perf_counter()
+        try:
+            capture = acq.load()
+        except InspectorError as exc:
+            outcome = Outcome(_error_result(acq.name, recipe, str(exc), {"load": time.perf_counter() - t0, "total": time.perf_counter() - t0}), None)
+        except Exception as exc:  # noqa: BLE001
+            reason = f"internal error reading capture: {type(exc).__name__}: {' '.join(str(exc).split())}"
+            outcome = Outcome(_error_result(acq.name, recipe, reason, {"total": time.perf_counter() - t0}), None, traceback.format_exc())
+        else:
+            outcome = inspect_capture(capture, recipe, reference, pm, load_s=time.perf_counter() - t0)
+        folder = None
+        if outdir is not None:
+            folder = outputs.write_result(outcome.result, Path(outdir), reference=reference, trace=outcome.trace)
+        pm.on_result(outcome.result, folder)
+        if progress is not None:
+            progress(outputs.one_line(outcome.result))
+        yield outcome
+
+
+def exit_status(results: Iterable[InspectionResult]) -> int:
+    """CONTRACT exit status: 3 if any capture errored, else 1 if any failed, else 0."""
+    verdicts = {r.verdict for r in results}
+    if "error" in verdicts:
+        return 3
+    if "fail" in verdicts:
+        return 1
+    return 0

@@ -1,0 +1,154 @@
+"""Stages ``bcps.ray`` and ``bcps.surface``: best-case coherent points, then pose refinement.
+
+Both apply the signed-argmin rule (see :mod:`inspector.kernels.bcps`). With
+``refine_pose`` the stage also finishes the alignment the paper's way round: select,
+re-align the reference on the selected points, select again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from inspector import hookimpl
+from inspector.errors import StageError
+from inspector.kernels import bcps as bk
+from inspector.model import BcpsPoints
+from inspector.params import param
+from inspector.pipeline import InspectionContext
+from inspector.registry import StageRegistry, StageSpec
+
+
+@dataclass(frozen=True)
+class RayParams:
+    step_mm: float = param(0.25, "coarse sampling step along each contour ray, mm", min=0.01, max=5.0)
+    refine_levels: int = param(2, "refinement levels around the coarse minimum (each 10x finer)", min=0, max=5)
+    refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
+    refine_robust_mm: float = param(0.1, "robust scale of the re-alignment (points beyond are down-weighted), mm", min=0.001)
+    tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
+    accept_px: float = param(0.5, "largest hull violation of a selected point, px (beyond: the ray has no point)", min=0.0, max=5.0)
+    violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0)
+    margin_mm: float = param(2.0, "margin added around the reconstruction's bounds for the rays, mm", min=0.0)
+
+
+@dataclass(frozen=True)
+class SurfaceParams:
+    refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
+    refine_robust_mm: float = param(0.3, "robust scale of the re-alignment, mm", min=0.001)
+
+
+def _bounds(ctx: InspectionContext, margin: float) -> np.ndarray:
+    pts = ctx.need("reconstruction", "bcps").points
+    if len(pts) == 0:
+        raise StageError("bcps: the reconstruction is empty")
+    return np.stack([pts.min(axis=0) - margin, pts.max(axis=0) + margin])
+
+
+def _views(ctx: InspectionContext, cache: dict) -> list[bk.View]:
+    if "views" not in cache:
+        from inspector.kernels.silhouette import inside_map
+
+        sils = ctx.need("silhouettes", "bcps")
+        cache["views"] = [bk.View(cam, inside_map(s.soft), s.touches_border) for cam, s in zip(ctx.capture.rig.cameras, sils)]
+    return cache["views"]
+
+
+def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: dict) -> BcpsPoints:
+    """Run the ``ray`` method on every camera for the reference placed at ``pose``."""
+    sils = ctx.need("silhouettes", "bcps")
+    ref = ctx.need("reference", "bcps")
+    rig = ctx.capture.rig
+    views = _views(ctx, cache)
+    bounds = _bounds(ctx, p.margin_mm)
+    sd_fn = lambda X: ref.signed_distance(X, pose)  # noqa: E731
+    out = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
+    for i, (cam, sil) in enumerate(zip(rig.cameras, sils)):
+        if len(sil.contour) == 0:
+            continue
+        origin, dirs = cam.rays(sil.contour)
+        others = views[:i] + views[i + 1 :]
+        pts, dev, seg, ok = bk.select_on_rays(
+            origin, dirs, others, sd_fn, bounds, step_mm=p.step_mm, refine_levels=p.refine_levels,
+            tolerance_px=p.tolerance_px, accept_px=p.accept_px, violation_weight=p.violation_weight,
+        )
+        out["points"].append(pts[ok])
+        out["deviation"].append(dev[ok])
+        out["camera"].append(np.full(int(ok.sum()), i, np.int32))
+        out["pixel"].append(sil.contour[ok])
+        out["segment"].append(seg[ok])
+    return _assemble(out, "ray")
+
+
+def _assemble(out: dict[str, list[np.ndarray]], method: str) -> BcpsPoints:
+    if not out["points"] or sum(len(a) for a in out["points"]) == 0:
+        raise StageError("bcps: no contour ray met the reconstruction (no point selected)")
+    return BcpsPoints(
+        points=np.concatenate(out["points"]),
+        deviation=np.concatenate(out["deviation"]),
+        camera=np.concatenate(out["camera"]),
+        pixel=np.concatenate(out["pixel"]),
+        segment_mm=np.concatenate(out["segment"]),
+        method=method,
+    )
+
+
+def select_surface(ctx: InspectionContext, pose: np.ndarray, p: SurfaceParams, cache: dict) -> BcpsPoints:
+    """Run the ``surface`` method (the paper's) for the reference placed at ``pose``."""
+    import cv2
+
+    sils = ctx.need("silhouettes", "bcps")
+    ref = ctx.need("reference", "bcps")
+    recon = ctx.need("reconstruction", "bcps")
+    sd = ref.signed_distance(recon.points, pose)
+    out = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
+    kernel = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], np.uint8)
+    for i, (cam, sil) in enumerate(zip(ctx.capture.rig.cameras, sils)):
+        m = sil.mask.astype(np.uint8)
+        contour = sil.mask & ~cv2.erode(m, kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
+        idx, pix, seg, dev = bk.select_on_surface(recon.points, sd, cam, contour)
+        out["points"].append(recon.points[idx])
+        out["deviation"].append(dev)
+        out["camera"].append(np.full(len(idx), i, np.int32))
+        out["pixel"].append(pix)
+        out["segment"].append(seg)
+    return _assemble(out, "surface")
+
+
+def _run(select, robust_attr: str):
+    def run(ctx: InspectionContext, p) -> InspectionContext:
+        from inspector.kernels.registration import refine_on_points
+
+        alignment = ctx.need("alignment", "bcps")
+        ref = ctx.need("reference", "bcps")
+        cache: dict = {}
+        sel = select(ctx, alignment.pose, p, cache)
+        if p.refine_pose:
+            refined = refine_on_points(sel.points, ref.vertices, ref.faces, alignment.pose, robust_mm=getattr(p, robust_attr))
+            alignment = type(alignment)(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")
+            sel = select(ctx, alignment.pose, p, cache)
+        return ctx.evolve(bcps=sel, alignment=alignment)
+
+    return run
+
+
+@hookimpl
+def inspector_register_stages(registry: StageRegistry) -> None:
+    registry.add(
+        StageSpec(
+            name="bcps.ray",
+            run=_run(select_rays, "refine_robust_mm"),
+            params=RayParams,
+            requires=("segment", "carve", "align"),
+            doc="BCPS on the exact rays through sub-pixel contour points (image-based visual hull), signed argmin",
+        )
+    )
+    registry.add(
+        StageSpec(
+            name="bcps.surface",
+            run=_run(select_surface, "refine_robust_mm"),
+            params=SurfaceParams,
+            requires=("segment", "carve", "align"),
+            doc="BCPS on the reconstruction's surface points falling on contour pixels (the paper's method)",
+        )
+    )

@@ -1,0 +1,105 @@
+"""Stage ``evaluate.tolerance``: per-point tolerance bands, defect clusters and the verdict.
+
+A BCPS deviation beyond tolerance is a real defect (the selection is the best case the
+images allow); missing material is measured in full, excess material is a lower bound.
+A part fails when a cluster of at least ``min_points`` out-of-tolerance points exists;
+smaller groups are counted in ``stats.isolated_out_of_tolerance`` but do not reject it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from inspector import hookimpl
+from inspector.kernels.deviation import cluster_points, deviation_stats
+from inspector.model import Defect, Evaluation
+from inspector.params import param
+from inspector.pipeline import InspectionContext
+from inspector.registry import StageRegistry, StageSpec
+
+
+@dataclass(frozen=True)
+class EvaluateParams:
+    cluster_radius_mm: float = param(1.0, "out-of-tolerance points closer than this belong to one defect, mm", min=0.01)
+    min_points: int = param(3, "points a defect needs to reject the part", min=1)
+
+
+def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
+    sel = ctx.need("bcps", "evaluate")
+    pose = ctx.need("alignment", "evaluate").pose
+    ref = ctx.need("reference", "evaluate")
+    tol = ctx.tolerance
+    dev = sel.deviation
+    n = len(dev)
+    lower = np.full(n, tol.default.lower)
+    upper = np.full(n, tol.default.upper)
+    region = np.full(n, -1)
+    if tol.regions:
+        local = ref.to_reference_frame(sel.points, pose)
+        for k, r in enumerate(tol.regions):
+            inside = r.contains(local)
+            lower[inside], upper[inside], region[inside] = r.band.lower, r.band.upper, k
+    names = [r.name for r in tol.regions]
+    missing = dev < lower
+    excess = dev > upper
+    defects: list[Defect] = []
+    isolated = 0
+    for kind, flag in (("missing", missing), ("excess", excess)):
+        idx = np.flatnonzero(flag)
+        if idx.size == 0:
+            continue
+        labels = cluster_points(sel.points[idx], p.cluster_radius_mm)
+        for lab in np.unique(labels):
+            members = idx[labels == lab]
+            if members.size < p.min_points:
+                isolated += int(members.size)
+                continue
+            pts = sel.points[members]
+            d = dev[members]
+            worst = float(d.min() if kind == "missing" else d.max())
+            regs = region[members]
+            reg = names[np.bincount(regs[regs >= 0]).argmax()] if (regs >= 0).any() else "default"
+            defects.append(
+                Defect(
+                    kind=kind,
+                    position=tuple(float(x) for x in pts.mean(axis=0)),
+                    extent=tuple(float(x) for x in (pts.max(axis=0) - pts.min(axis=0))),
+                    n_points=int(members.size),
+                    worst_mm=worst,
+                    region=reg,
+                )
+            )
+    defects.sort(key=lambda d: -abs(d.worst_mm))
+    out = missing | excess
+    stats = {
+        "n_points": int(n),
+        "deviation_mm": deviation_stats(dev),
+        "within_tolerance": float(1.0 - out.mean()) if n else 0.0,
+        "out_of_tolerance_points": int(out.sum()),
+        "isolated_out_of_tolerance": isolated,
+        "tolerance_mm": {"lower": tol.default.lower, "upper": tol.default.upper},
+        "bcps_method": sel.method,
+        "segment_mm": {"median": float(np.median(sel.segment_mm)) if n else 0.0},
+    }
+    if tol.regions:
+        stats["regions"] = {
+            name: {"n_points": int((region == k).sum()), "deviation_mm": deviation_stats(dev[region == k])}
+            for k, name in enumerate(names)
+        }
+    verdict = "fail" if defects else "pass"
+    return ctx.evolve(evaluation=Evaluation(verdict, stats, tuple(defects), out))
+
+
+@hookimpl
+def inspector_register_stages(registry: StageRegistry) -> None:
+    registry.add(
+        StageSpec(
+            name="evaluate.tolerance",
+            run=evaluate,
+            params=EvaluateParams,
+            requires=("bcps",),
+            doc="Signed deviations against tolerance bands (global and per region), defect clusters, verdict",
+        )
+    )

@@ -1,0 +1,106 @@
+"""Stage ``segment.threshold``: silhouettes with sub-pixel contours from grey levels."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from inspector import hookimpl
+from inspector.errors import StageError
+from inspector.kernels import silhouette as sk
+from inspector.model import Silhouette
+from inspector.params import param
+from inspector.pipeline import InspectionContext
+from inspector.registry import StageRegistry, StageSpec
+
+
+@dataclass(frozen=True)
+class SegmentParams:
+    polarity: Literal["auto", "dark-object", "bright-object"] = param(
+        "auto", "object darker or brighter than the background; auto: the capture's polarity (capture.json, default dark-object)"
+    )
+    threshold: Literal["otsu", "fixed"] = param("otsu", "how the object/background level is chosen")
+    level: float = param(
+        128.0,
+        "with threshold='fixed': level on the object signal, 8-bit scale (255 - grey for dark objects; the difference to the background when subtracting)",
+        min=0.0,
+        max=255.0,
+    )
+    background: Literal["auto", "on", "off"] = param("auto", "subtract background images: auto uses them when the capture has them")
+    median: Literal["off", "impulse", "full"] = param(
+        "impulse",
+        "3x3 median against impulse noise: 'impulse' replaces only outlier pixels (keeps anti-aliased edges), 'full' filters every pixel",
+    )
+    impulse_threshold: float = param(60.0, "grey-level difference to the 3x3 median above which a pixel is an impulse", min=1.0)
+    subpixel: Literal["area", "linear"] = param(
+        "area", "sub-pixel contour: 'area' (coverage summed across the edge, exact for straight edges) or 'linear' (marching squares)"
+    )
+    min_area_px: int = param(50, "connected components smaller than this are noise", min=1)
+
+
+def _denoise(grey: np.ndarray, p: SegmentParams) -> np.ndarray:
+    if p.median == "off":
+        return grey
+    import cv2
+
+    med = cv2.medianBlur(grey, 3)
+    if p.median == "full":
+        return med
+    return np.where(np.abs(grey - med) > p.impulse_threshold, med, grey)
+
+
+def segment_image(
+    image: np.ndarray,
+    background: np.ndarray | None,
+    polarity: str,
+    p: SegmentParams,
+    camera: str,
+) -> Silhouette:
+    """One camera image -> :class:`Silhouette` (pure function of its inputs)."""
+    grey = _denoise(sk.to_grey(image), p)
+    bg = _denoise(sk.to_grey(background), p) if background is not None else None
+    signal = sk.object_signal(grey, polarity, bg)
+    level = sk.otsu_level(signal) if p.threshold == "otsu" else p.level
+    soft, bg_level, fg_level = sk.coverage(signal, level)
+    raw = (signal - np.float32(bg_level)) * np.float32(1.0 / max(fg_level - bg_level, 1e-6))
+    if fg_level - bg_level < 10.0:
+        raise StageError(f"camera {camera}: empty silhouette (no contrast between object and background)")
+    mask = sk.largest_components(soft >= 0.5, p.min_area_px)
+    if not mask.any():
+        raise StageError(f"camera {camera}: empty silhouette (no object region of {p.min_area_px} px or more)")
+    soft = np.where(mask | (soft < 0.5), soft, 0.0).astype(np.float32)
+    border = sk.touches_border(mask)
+    contour = sk.subpixel_contour(soft, mask, margin=1.0)
+    if p.subpixel == "area":
+        contour = sk.refine_contour_area(contour, np.where(mask | (raw < 0.5), raw, 0.0).astype(np.float32))
+        h, w = mask.shape
+        m = (contour[:, 0] >= 1) & (contour[:, 0] <= w - 2) & (contour[:, 1] >= 1) & (contour[:, 1] <= h - 2)
+        contour = contour[m]
+    return Silhouette(camera=camera, mask=mask, soft=soft, contour=contour, touches_border=border)
+
+
+def run_segment(ctx: InspectionContext, p: SegmentParams) -> InspectionContext:
+    cap = ctx.capture
+    polarity = cap.polarity if p.polarity == "auto" else p.polarity
+    use_bg = p.background == "on" or (p.background == "auto" and bool(cap.backgrounds))
+    sils = []
+    for cam in cap.rig:
+        bg = cap.backgrounds.get(cam.name) if use_bg else None
+        if use_bg and bg is None:
+            raise StageError(f"camera {cam.name}: no background image (background/{cam.name}.png)")
+        sils.append(segment_image(cap.images[cam.name], bg, polarity, p, cam.name))
+    return ctx.evolve(silhouettes=tuple(sils))
+
+
+@hookimpl
+def inspector_register_stages(registry: StageRegistry) -> None:
+    registry.add(
+        StageSpec(
+            name="segment.threshold",
+            run=run_segment,
+            params=SegmentParams,
+            doc="Silhouette per camera: threshold, impulse filtering, coverage from grey levels, sub-pixel contour",
+        )
+    )

@@ -1,0 +1,217 @@
+"""The ``inspector`` CLI: CONTRACT exit codes, outputs, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from inspector.cli import main
+from inspector.outputs import read_ply
+
+DEFAULT = str(Path(__file__).resolve().parents[2] / "recipes" / "default.toml")
+
+
+def run_cli(*args: str) -> int:
+    return main(list(args))
+
+
+@pytest.fixture(scope="module")
+def e2e(sim_captures, tmp_path_factory):
+    out = tmp_path_factory.mktemp("e2e")
+    code = run_cli("run", DEFAULT, "--capture", str(sim_captures["good"]), str(sim_captures["notched"]),
+                   "--out", str(out), "--reference", "builtin:cube30")
+    return code, out
+
+
+@pytest.mark.slow
+def test_good_cube_passes_and_notched_cube_fails(e2e, sim_captures):
+    code, out = e2e
+    assert code == 1  # one part failed
+    good = json.loads((out / "good" / "result.json").read_text())
+    bad = json.loads((out / "notched" / "result.json").read_text())
+    assert good["verdict"] == "pass", good["defects"]
+    assert good["defects"] == []
+    assert bad["verdict"] == "fail"
+    assert len(bad["defects"]) == 1
+    d = bad["defects"][0]
+    truth = json.loads((sim_captures["notched"] / "truth" / "truth.json").read_text())
+    pose = np.array(truth["pose"])
+    bump_world = pose[:3, :3] @ np.array([15.0, 15.0, 0.0]) + pose[:3, 3]
+    assert np.linalg.norm(np.array(d["position"]) - bump_world) < 1.5
+    assert d["kind"] == "missing" and d["worst_mm"] < -0.5
+
+
+@pytest.mark.slow
+def test_result_files_follow_the_contract(e2e):
+    _, out = e2e
+    res = json.loads((out / "good" / "result.json").read_text())
+    assert set(res) >= {"capture", "recipe", "verdict", "error", "timings_s", "pose", "stats", "defects", "points"}
+    assert res["capture"] == "good" and res["recipe"] == "default" and res["error"] is None
+    assert set(res["timings_s"]) >= {"segment", "carve", "align", "bcps", "evaluate", "total"}
+    assert np.array(res["pose"]).shape == (4, 4)
+    assert res["points"] == {"bcps": "bcps_points.ply", "reconstruction": "reconstruction.ply"}
+    pts = read_ply(out / "good" / "bcps_points.ply")
+    assert {"x", "y", "z", "deviation"} <= set(pts) and len(pts["x"]) > 5000
+    assert np.all(np.abs(pts["deviation"]) < 0.2)
+    rec = read_ply(out / "good" / "reconstruction.ply")
+    assert len(rec["x"]) > 1000
+
+
+@pytest.mark.slow
+def test_bcps_accuracy_against_truth(e2e):
+    """Issue 2 bar: BCPS mean distance to the true surface <= 0.25 px footprint."""
+    _, out = e2e
+    res = json.loads((out / "good" / "result.json").read_text())
+    t = res["stats"]["truth"]
+    assert t["bcps"]["mean_px"] <= 0.25, t
+    assert t["bcps"]["mean_mm"] < t["reconstruction"]["mean_mm"] / 5
+
+
+# -- bad input ---------------------------------------------------------------------------
+def _copy(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def _mut_rig(key_path, value):
+    def f(folder: Path):
+        rig = json.loads((folder / "rig.json").read_text())
+        obj = rig
+        for k in key_path[:-1]:
+            obj = obj[k]
+        obj[key_path[-1]] = value
+        (folder / "rig.json").write_text(json.dumps(rig))
+    return f
+
+
+def _truncate(folder: Path):
+    p = folder / "images" / "cam03.png"
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+
+
+def _resize(folder: Path):
+    import cv2
+
+    p = folder / "images" / "cam02.png"
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(p), img[:-8])
+
+
+def _blank(folder: Path):
+    import cv2
+
+    p = folder / "images" / "cam04.png"
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(p), np.full_like(img, 200))
+
+
+def _drop_camera(folder: Path):
+    rig = json.loads((folder / "rig.json").read_text())
+    rig["cameras"] = [c for c in rig["cameras"] if c["name"] != "cam01"]
+    (folder / "rig.json").write_text(json.dumps(rig))
+
+
+BAD = [
+    ("missing-image", lambda f: (f / "images" / "cam05.png").unlink(), "cam05"),
+    ("unreadable-image", lambda f: (f / "images" / "cam06.png").write_bytes(b"not a png"), "cam06.png"),
+    ("truncated-png", _truncate, "cam03.png"),
+    ("size-mismatch", _resize, "cam02.png"),
+    ("camera-not-in-rig", _drop_camera, "cam01"),
+    ("R-not-rotation", _mut_rig(("cameras", 2, "R"), [[1, 0, 0], [0, 1, 0], [0, 0, 2]]), "cam02"),
+    ("K-non-finite", _mut_rig(("cameras", 1, "K"), [[float("nan"), 0, 1], [0, 1, 1], [0, 0, 1]]), "cam01"),
+    ("rig-not-json", lambda f: (f / "rig.json").write_text("{cameras: ["), "rig.json"),
+    ("empty-silhouette", _blank, "cam04"),
+]
+
+
+@pytest.mark.parametrize("name, mutate, needle", BAD, ids=[b[0] for b in BAD])
+def test_bad_capture_is_an_error_and_the_batch_goes_on(name, mutate, needle, small_capture, tmp_path, capsys):
+    bad = _copy(small_capture, tmp_path / f"bad-{name}")
+    mutate(bad)
+    good = _copy(small_capture, tmp_path / "ok")
+    out = tmp_path / "out"
+    code = run_cli("run", DEFAULT, "--capture", str(bad), str(good), "--out", str(out), "--reference", "builtin:cube30", "-q")
+    assert code == 3
+    res = json.loads((out / bad.name / "result.json").read_text())
+    assert res["verdict"] == "error"
+    assert needle in res["error"] and "\n" not in res["error"]
+    assert "Traceback" not in capsys.readouterr().err
+    other = json.loads((out / "ok" / "result.json").read_text())
+    assert other["verdict"] in ("pass", "fail")  # still inspected
+
+
+def test_missing_capture_folder(tmp_path, small_capture):
+    code = run_cli("run", DEFAULT, "--capture", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o"), "--reference", "builtin:cube30", "-q")
+    assert code == 3
+    res = json.loads((tmp_path / "o" / "nowhere" / "result.json").read_text())
+    assert res["verdict"] == "error" and "nowhere" in res["error"]
+
+
+def _stderr_line(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and "Traceback" not in "\n".join(err)
+    return err[-1]
+
+
+def test_reference_missing_is_invalid(tmp_path, small_capture, capsys):
+    code = run_cli("run", DEFAULT, "--capture", str(small_capture), "--out", str(tmp_path / "o"), "--reference", str(tmp_path / "none.stl"))
+    assert code == 2
+    assert "none.stl" in _stderr_line(capsys)
+    assert not (tmp_path / "o").exists()  # nothing inspected
+
+
+def test_reference_not_watertight_is_invalid(tmp_path, small_capture, capsys):
+    import trimesh
+
+    m = trimesh.creation.box((30, 30, 30))
+    m.update_faces(np.arange(len(m.faces)) != 0)
+    m.export(tmp_path / "open.stl")
+    code = run_cli("run", DEFAULT, "--capture", str(small_capture), "--out", str(tmp_path / "o"), "--reference", str(tmp_path / "open.stl"))
+    assert code == 2
+    line = _stderr_line(capsys)
+    assert "open.stl" in line and "watertight" in line
+
+
+@pytest.mark.parametrize(
+    "text, needle",
+    [
+        ('[[stages]]\nuse = "segment.magic"\n', "unknown stage 'segment.magic'"),
+        ('[[stages]]\nuse = "segment.threshold"\nparams = { polarty = "dark-object" }\n', "unknown parameter 'polarty'"),
+    ],
+)
+def test_bad_recipe_is_invalid(text, needle, tmp_path, small_capture, capsys):
+    r = tmp_path / "bad.toml"
+    r.write_text(text)
+    code = run_cli("run", str(r), "--capture", str(small_capture), "--out", str(tmp_path / "o"))
+    assert code == 2
+    line = _stderr_line(capsys)
+    assert "bad.toml" in line and needle in line
+
+
+def test_recipe_check_and_plugins(capsys):
+    assert run_cli("recipe", "check", DEFAULT, "--reference", "builtin:cube30") == 0
+    assert "OK" in capsys.readouterr().out
+    assert run_cli("plugins", "--json") == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert "bcps.ray" in doc["stages"] and "sim" in doc["drivers"]
+    assert any(p["name"] == "voxel_mm" for p in doc["stages"]["carve.hull"]["params"])
+
+
+def test_usage_error_exit_code():
+    with pytest.raises(SystemExit) as e:
+        run_cli("run")
+    assert e.value.code == 2
+
+
+def test_console_script_runs_without_traceback(tmp_path):
+    exe = Path(sys.executable).with_name("inspector")
+    p = subprocess.run([str(exe), "recipe", "check", str(tmp_path / "x.toml")], capture_output=True, text=True)
+    assert p.returncode == 2
+    assert p.stderr.strip().count("\n") == 0 and "x.toml" in p.stderr and "Traceback" not in p.stderr
