@@ -8,6 +8,7 @@ re-align the reference on the selected points, select again.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -29,6 +30,7 @@ class RayParams:
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
     accept_px: float = param(0.5, "largest hull violation of a selected point, px (beyond: the ray has no point)", min=0.0, max=5.0)
     violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0)
+    backend: Literal["numba", "numpy"] = param("numba", "hull kernel: compiled (numba) or the numpy reference")
     margin_mm: float = param(2.0, "margin added around the reconstruction's bounds for the rays, mm", min=0.0)
 
 
@@ -51,7 +53,15 @@ def _views(ctx: InspectionContext, cache: dict) -> list[bk.View]:
 
         sils = ctx.need("silhouettes", "bcps")
         cache["views"] = [bk.View(cam, inside_map(s.soft), s.touches_border) for cam, s in zip(ctx.capture.rig.cameras, sils)]
+        if p_backend(cache) == "numba":
+            from inspector.kernels.hull_jit import stack_views
+
+            cache["stack"] = stack_views(cache["views"])
     return cache["views"]
+
+
+def p_backend(cache: dict) -> str:
+    return cache.get("backend", "numba")
 
 
 def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: dict) -> BcpsPoints:
@@ -67,9 +77,8 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
         if len(sil.contour) == 0:
             continue
         origin, dirs = cam.rays(sil.contour)
-        others = views[:i] + views[i + 1 :]
         pts, dev, seg, ok = bk.select_on_rays(
-            origin, dirs, others, sd_fn, bounds, step_mm=p.step_mm, refine_levels=p.refine_levels,
+            origin, dirs, views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm, refine_levels=p.refine_levels,
             tolerance_px=p.tolerance_px, accept_px=p.accept_px, violation_weight=p.violation_weight,
         )
         out["points"].append(pts[ok])
@@ -121,7 +130,7 @@ def _run(select, robust_attr: str):
 
         alignment = ctx.need("alignment", "bcps")
         ref = ctx.need("reference", "bcps")
-        cache: dict = {}
+        cache: dict = {"backend": getattr(p, "backend", "numba")}
         sel = select(ctx, alignment.pose, p, cache)
         if p.refine_pose:
             refined = refine_on_points(sel.points, ref.vertices, ref.faces, alignment.pose, robust_mm=getattr(p, robust_attr))

@@ -47,8 +47,11 @@ class View:
     open_border: bool = False
 
 
-def hull_violation(X: np.ndarray, views: Sequence[View], limit: float = np.inf) -> np.ndarray:
+def hull_violation(X: np.ndarray, views: Sequence[View], limit: float = np.inf, skip: int = -1) -> np.ndarray:
     """How far outside the visual hull of ``views`` world points lie, in pixels.
+
+    This is the numpy reference; :mod:`inspector.kernels.hull_jit` is the compiled
+    equivalent used by default.
 
     Parameters
     ----------
@@ -57,6 +60,8 @@ def hull_violation(X: np.ndarray, views: Sequence[View], limit: float = np.inf) 
     limit : float
         Points already farther outside than this are not evaluated further (they keep a
         value > ``limit``): a cheap early exit.
+    skip : int
+        Index of a view to ignore (the camera whose own contour the rays go through).
 
     Returns
     -------
@@ -65,7 +70,9 @@ def hull_violation(X: np.ndarray, views: Sequence[View], limit: float = np.inf) 
     """
     v = np.zeros(len(X))
     alive = np.arange(len(X))
-    for view in views:
+    for i, view in enumerate(views):
+        if i == skip:
+            continue
         if alive.size == 0:
             break
         uv, z = view.camera.project(X[alive])
@@ -117,7 +124,7 @@ def _lipschitz_px_per_mm(views: Sequence[View], bounds: np.ndarray) -> float:
     return worst
 
 
-def _evaluate(origin, dirs, t, views, sd_fn, eps, tol, weight):
+def _evaluate(origin, dirs, t, hull, sd_fn, eps, tol, weight):
     """Hull violation (px) and selection cost on a (R, K) grid of ray parameters.
 
     The cost is the signed distance plus ``weight`` mm per pixel of violation beyond
@@ -126,7 +133,7 @@ def _evaluate(origin, dirs, t, views, sd_fn, eps, tol, weight):
     """
     R, K = t.shape
     X = (origin[None, None, :] + t[..., None] * dirs[:, None, :]).reshape(-1, 3)
-    viol = hull_violation(X, views, eps)
+    viol = hull(X, eps)
     member = viol <= eps
     sd = np.full(len(X), np.inf)
     if member.any():
@@ -138,7 +145,8 @@ def _evaluate(origin, dirs, t, views, sd_fn, eps, tol, weight):
 def select_on_rays(
     origin: np.ndarray,
     dirs: np.ndarray,
-    others: Sequence[View],
+    views: Sequence[View],
+    skip: int,
     sd_fn: SignedDistance,
     bounds: np.ndarray,
     *,
@@ -149,6 +157,7 @@ def select_on_rays(
     accept_px: float = 0.5,
     violation_weight: float = 3.0,
     max_points: int = 1_000_000,
+    stack: object | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """BCPS on exact rays (the ``ray`` method).
 
@@ -165,8 +174,10 @@ def select_on_rays(
         Optical centre of the camera, mm.
     dirs : (M, 3) float
         Unit directions of the rays through its sub-pixel contour points.
-    others : sequence of View
-        Every *other* camera of the rig with its silhouette.
+    views : sequence of View
+        Every camera of the rig with its silhouette.
+    skip : int
+        Index of the camera whose contour the rays go through (not a constraint).
     sd_fn : callable
         ``(N, 3) world mm -> (N,)`` signed distance to the aligned reference, mm.
     bounds : (2, 3) float
@@ -188,6 +199,9 @@ def select_on_rays(
         brings back outliers at silhouette corners).
     max_points : int
         Samples evaluated at once (memory bound).
+    stack : hull_jit.CameraStack, optional
+        ``views`` packed for the compiled kernel (:func:`hull_jit.stack_views`); when
+        None the numpy reference implementation is used.
 
     Returns
     -------
@@ -206,8 +220,19 @@ def select_on_rays(
     valid = np.zeros(M, bool)
     t0, t1 = ray_box(origin, dirs, bounds)
     hit = np.flatnonzero(t1 > t0)
+    others = [v for i, v in enumerate(views) if i != skip]
     if hit.size == 0 or not others:
         return points, deviation, segment, valid
+    if stack is not None:
+        from inspector.kernels.hull_jit import violation
+
+        def hull(X, limit):
+            return violation(X, stack, limit, skip)
+    else:
+
+        def hull(X, limit):
+            return hull_violation(X, views, limit, skip)
+
     lip = _lipschitz_px_per_mm(others, bounds)
     weight = violation_weight / lip  # mm per pixel of violation
     K = int(np.ceil((t1[hit] - t0[hit]).max() / step_mm)) + 1
@@ -221,7 +246,7 @@ def select_on_rays(
         d = dirs[rows]
         t = np.minimum(t0[rows, None] + step_mm * np.arange(K)[None, :], t1[rows, None])
         eps = max(0.5 * lip * step_mm, accept_px)
-        viol, sd, cost = _evaluate(origin, d, t, others, sd_fn, eps, tolerance_px, weight)
+        viol, sd, cost = _evaluate(origin, d, t, hull, sd_fn, eps, tolerance_px, weight)
         segment[rows] = np.isfinite(sd).sum(axis=1) * step_mm
         # Best candidate, or (none) the sample closest to the hull.
         has = np.isfinite(cost).any(axis=1)
@@ -233,7 +258,7 @@ def select_on_rays(
         for _ in range(refine_levels):
             tt = tbest[:, None] + h * offsets[None, :]
             eps = max(0.5 * lip * h / half, accept_px)
-            v2, s2, c2 = _evaluate(origin, d, tt, others, sd_fn, eps, tolerance_px, weight)
+            v2, s2, c2 = _evaluate(origin, d, tt, hull, sd_fn, eps, tolerance_px, weight)
             has = np.isfinite(c2).any(axis=1)
             k2 = np.where(has, np.argmin(c2, axis=1), np.argmin(v2, axis=1))
             tbest = tt[ar, k2]

@@ -64,8 +64,9 @@ _DEGENERATE = 0.8
 #: ``_PRUNE_EVERY`` iterations, down to ``_KEEP_MIN`` candidates).
 _COARSE_CUTOFF = 3.0
 _SCORE_CAP = 1.0
-_COARSE_ITERATIONS = 16
+_COARSE_ITERATIONS = 20
 _COARSE_BUDGET = 8000
+_FIRST_PRUNE = 6
 _PRUNE_EVERY = 2
 _KEEP_MIN = 3
 #: FPFH + RANSAC hypothesis: iteration cap and neighbours per feature.
@@ -78,6 +79,8 @@ _MAD_SIGMA = 1.4826
 _REL_DECREASE = 1e-4
 #: Correspondences whose normals disagree more than this (cosine) are ignored.
 _NORMAL_COS = -0.5
+#: The Tukey cutoff of a fit shrinks by at most this factor per iteration.
+_SHRINK = 0.5
 
 
 def _cube_group() -> np.ndarray:
@@ -195,11 +198,17 @@ def _cloud(points: np.ndarray, normals: np.ndarray | None = None) -> o3d.geometr
     return pc
 
 
-def _subsample(pc: o3d.geometry.PointCloud, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """Voxel-grid average of a cloud with normals: points (M, 3) and unit normals (M, 3)."""
-    sub = pc.voxel_down_sample(voxel)
-    sub.normalize_normals()
-    return np.asarray(sub.points), np.asarray(sub.normals)
+def _voxel_pick(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Indices (M,) of one point per occupied voxel of size ``voxel``, in input order.
+
+    Unlike a voxel-grid average, the kept points are genuine surface samples
+    (averaging pulls points off curved surfaces and edges).
+    """
+    cell = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
+    dims = cell.max(axis=0) + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    _, first = np.unique(key, return_index=True)
+    return np.sort(first)
 
 
 class _Reference:
@@ -277,7 +286,8 @@ class _Step:
     """One Gauss-Newton step of K candidate poses on the same points.
 
     The Tukey cutoff of each candidate is ``4.685 * 1.4826 * median(r)`` clipped
-    to ``[floor, cutoff]``. With ``n_keep``, the candidates are first ranked by
+    to ``[floor, cutoff]``, but shrinks by at most ``_SHRINK`` per step (so that
+    weakly constrained motions converge before their evidence is cut off). With ``n_keep``, the candidates are first ranked by
     their mean capped distance ``mean(min(r, cap))`` and only the best ``n_keep``
     (in their original order) are kept and stepped.
 
@@ -291,6 +301,8 @@ class _Step:
         Poses after the step (world -> internal).
     cutoff : (K',) float
         Tukey cutoff used, mm.
+    settled : (K',) bool
+        Whether the cutoff has reached its data-driven value (is not shrinking).
     move : (K',) float
         Weighted RMS motion of the points along their residual directions, mm.
     cost : (K',) float
@@ -320,8 +332,11 @@ class _Step:
                 self.keep = np.sort(np.argsort(self.score, kind="stable")[:n_keep])
                 k = self.keep
                 W, q, n, d, r, cutoff, floor = W[k], q[k], n[k], d[k], r[k], cutoff[k], floor[k]
-        cutoff = np.maximum(floor, np.minimum(cutoff, _TUKEY_C * _MAD_SIGMA * np.median(r, axis=1)))
-        self.cutoff = cutoff
+        target = np.maximum(floor, np.minimum(cutoff, _TUKEY_C * _MAD_SIGMA * np.median(r, axis=1)))
+        self.cutoff = np.maximum(target, _SHRINK * cutoff)  # shrink gradually (inf stays inf)
+        self.cutoff[~np.isfinite(cutoff)] = target[~np.isfinite(cutoff)]
+        self.settled = self.cutoff <= target
+        cutoff = self.cutoff
         # Gradient of the distance field: direction from the closest point, or the
         # triangle normal for points (numerically) on the surface.
         on_surface = r <= 1e-6
@@ -379,7 +394,8 @@ def _robust_fit(
         Initial world -> internal-reference transform.
     floor_mm, start_mm : float
         Lowest and initial Tukey cutoff, mm. The cutoff follows
-        ``4.685 * 1.4826 * median |r|`` between these bounds, never increasing.
+        ``4.685 * 1.4826 * median |r|`` between these bounds, never increasing
+        and at most halving per iteration.
     iterations : int
         Maximum number of Gauss-Newton steps.
     tol : float
@@ -404,7 +420,7 @@ def _robust_fit(
         step = _Step(ref, points, Wk, np.array([cutoff]), np.array([floor_mm]), normals)
         Wk, cutoff = step.W, float(step.cutoff[0])
         move, cost = float(step.move[0]), float(step.cost[0])
-        if move < tol or move * move < _REL_DECREASE * cost:
+        if step.settled[0] and (move < tol or move * move < _REL_DECREASE * cost):
             break
     dist = ref.distance(_transform(Wk, points)[0])
     return Wk[0], dist, cutoff
@@ -500,7 +516,7 @@ def _coarse_search(
     cutoff = np.full(len(W), _COARSE_CUTOFF * voxel)
     for it in range(_COARSE_ITERATIONS):
         stride = max(1, int(np.ceil(len(x) * len(W) / _COARSE_BUDGET)))
-        prune = it > 0 and it % _PRUNE_EVERY == 0 and len(W) > _KEEP_MIN
+        prune = it >= _FIRST_PRUNE and (it - _FIRST_PRUNE) % _PRUNE_EVERY == 0 and len(W) > _KEEP_MIN
         n_keep = max(_KEEP_MIN, (len(W) + 1) // 2) if prune else None
         step = _Step(ref, x[::stride], W, cutoff, cutoff, nx[::stride], n_keep=n_keep, cap=cap)
         W, cutoff = step.W, cutoff[step.keep]
@@ -579,11 +595,13 @@ def align_reference(
 
     # Coarse subsamples of the reconstruction and of the reference surface.
     voxel_c = max(voxel_mm, float(np.sqrt(ref.area / _COARSE_POINTS)))
-    full = _cloud(pts, nrm)
-    xs, ns = _subsample(full, voxel_c)
-    if len(xs) < 10:
-        xs, ns = pts, nrm
-    xt, nt = _subsample(_cloud(*ref.sample(_REF_SAMPLES, rng)), voxel_c)
+    pick = _voxel_pick(pts, voxel_c)
+    if len(pick) < 10:
+        pick = np.arange(len(pts))
+    xs, ns = pts[pick], nrm[pick]
+    ref_pts, ref_nrm = ref.sample(_REF_SAMPLES, rng)
+    pick = _voxel_pick(ref_pts, voxel_c)
+    xt, nt = ref_pts[pick], ref_nrm[pick]
 
     # Hypotheses (world -> internal reference), centroids matched.
     rots = _rotation_hypotheses(xs, xt)
@@ -598,9 +616,10 @@ def align_reference(
     best = _coarse_search(ref, xs, ns, W, voxel_c)
 
     # Fine fit: converge on a voxel subsample, then polish at full resolution.
-    fpts, fnrm = _subsample(full, voxel_mm)
+    pick = _voxel_pick(pts, voxel_mm)
+    fpts, fnrm = pts[pick], nrm[pick]
     floor = inlier_mm / 10.0
-    cutoff = inlier_mm
+    cutoff = max(inlier_mm, _COARSE_CUTOFF * voxel_c)
     tol = 1e-5 * ref.diag
     if 10 <= len(fpts) <= len(pts) // 2:
         best, _, cutoff = _robust_fit(

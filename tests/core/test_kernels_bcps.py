@@ -1,0 +1,124 @@
+"""BCPS kernels against analytic cases: a sphere seen by a ring of cameras."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from inspector.kernels import bcps as bk
+from inspector.kernels.silhouette import inside_map
+from inspector.model import Camera
+
+
+def _look_at(centre):
+    z = -centre / np.linalg.norm(centre)
+    up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(up, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    R = np.stack([x, y, z])
+    return R, -R @ centre
+
+
+def sphere_views(radius=10.0, n=6, size=256, f=1000.0, dist=400.0, ss=8, dist_coeffs=None):
+    """Cameras around the origin and exact anti-aliased sphere silhouettes (as inside-maps)."""
+    rng = np.random.default_rng(3)
+    dirs = rng.normal(size=(n, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    views = []
+    for i, d in enumerate(dirs):
+        R, t = _look_at(d * dist)
+        K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1]])
+        cam = Camera(f"c{i}", size, size, K, dist_coeffs if dist_coeffs is not None else np.zeros(5), R, t)
+        # coverage by supersampling rays against the analytic sphere
+        off = (np.arange(ss) + 0.5) / ss - 0.5
+        uu, vv = np.meshgrid(np.arange(size, dtype=float), np.arange(size, dtype=float))
+        cov = np.zeros((size, size))
+        for dy in off:
+            for dx in off:
+                uv = np.stack([(uu + dx).ravel(), (vv + dy).ravel()], axis=1)
+                o, rd = cam.rays(uv)
+                tc = rd @ (-o)
+                miss = np.linalg.norm(o + tc[:, None] * rd, axis=1)
+                cov += (miss <= radius).reshape(size, size)
+        views.append(bk.View(cam, inside_map((cov / ss**2).astype(np.float32))))
+    return views
+
+
+@pytest.fixture(scope="module")
+def views():
+    return sphere_views()
+
+
+def test_numba_kernel_matches_numpy_reference(views):
+    from inspector.kernels.hull_jit import stack_views, violation
+
+    rng = np.random.default_rng(0)
+    X = rng.uniform(-14, 14, size=(5000, 3))
+    ref = bk.hull_violation(X, views, skip=2)
+    jit = violation(X, stack_views(views), skip=2)
+    assert np.allclose(ref, jit, atol=1e-4)
+    limited = violation(X, stack_views(views), limit=1.0, skip=2)
+    assert np.all((limited > 1.0) == (ref > 1.0))
+
+
+def test_sphere_hull_membership(views):
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(2000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    inside = bk.hull_membership(d * 9.9, views, 0.0)
+    assert inside.all()
+    # 6 views leave bulges between their cones: most points 0.6 mm out are outside, all at 15 mm.
+    assert (bk.hull_violation(d * 10.6, views) > 0).mean() > 0.8
+    assert np.all(bk.hull_violation(d * 15.0, views) > 1.0)
+
+
+@pytest.mark.parametrize("scale", [0.97, 1.0])
+@pytest.mark.parametrize("use_jit", [True, False])
+def test_ray_selection_finds_the_rim_of_a_sphere(views, scale, use_jit):
+    """Reference = sphere of radius 10/scale: BCPS points lie on the true sphere (radius 10),
+    and their signed deviation is the true difference of radii."""
+    from inspector.kernels.hull_jit import stack_views
+
+    r_ref = 10.0 / scale
+    cam = views[0].camera
+    # exact sub-pixel contour: project rim points of the true sphere
+    c = cam.centre
+    dcen = np.linalg.norm(c)
+    axis = -c / dcen
+    rim_r = 10.0 * np.sqrt(dcen**2 - 100.0) / dcen
+    rim_c = c + axis * (dcen - 100.0 / dcen)
+    e1 = np.cross(axis, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    ang = np.linspace(0, 2 * np.pi, 200, endpoint=False)
+    rim = rim_c + rim_r * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
+    uv, _ = cam.project(rim)
+    origin, dirs = cam.rays(uv)
+
+    def sd(X):
+        return np.linalg.norm(X, axis=1) - r_ref
+
+    bounds = np.array([[-12.0] * 3, [12.0] * 3])
+    pts, dev, seg, ok = bk.select_on_rays(
+        origin, dirs, views, 0, sd, bounds, step_mm=0.25, stack=stack_views(views) if use_jit else None
+    )
+    assert ok.mean() > 0.95
+    err = np.abs(np.linalg.norm(pts[ok], axis=1) - 10.0)
+    px = 400.0 / 1000.0  # mm per px at the centre
+    assert err.mean() < 0.05 * px, err.mean()
+    assert np.allclose(dev[ok], 10.0 - r_ref, atol=0.1 * px)
+    assert np.all(seg[ok] > 0)
+
+
+def test_surface_selection_takes_the_signed_minimum():
+    cam = Camera("c", 10, 10, np.array([[10.0, 0, 4.5], [0, 10.0, 4.5], [0, 0, 1]]), np.zeros(5), np.eye(3), np.array([0, 0, 100.0]))
+    # three points on the ray through pixel (5, 5) at different depths, one elsewhere
+    pts = np.array([[0.05, 0.05, 0.0], [0.1, 0.1, 10.0], [0.0, 0.0, -10.0], [-3.0, -3.0, 0.0]])
+    pts[:3, :2] = (np.array([5.0, 5.0]) - 4.5) / 10.0 * (pts[:3, 2:3] + 100.0)
+    sd = np.array([0.3, -0.2, 0.1, -5.0])
+    contour = np.zeros((10, 10), bool)
+    contour[5, 5] = True
+    idx, pix, seg, dev = bk.select_on_surface(pts, sd, cam, contour)
+    assert list(idx) == [1] and dev[0] == -0.2 and tuple(pix[0]) == (5.0, 5.0)
+    assert seg[0] == pytest.approx(20.0)
