@@ -30,12 +30,17 @@ nearly equal (the axes are then ill-defined), also turned by intermediate
 angles; plus the identity and one FPFH + RANSAC estimate
 (:func:`open3d.pipelines.registration.registration_ransac_based_on_feature_matching`).
 All start with the centroids matched and are fitted together on a coarse voxel
-subsample with successive halving: every few iterations the worse half, by the
-mean capped distance of the points to the posed reference, is dropped. The
-survivor is then fitted on a finer subsample and polished at full resolution
-with a Tukey cutoff that adapts to the data (``4.685 * 1.4826 * median |r|``)
-but never drops below a floor, so that gross outliers (visual-hull bulges,
-defects) have no influence once the fit has converged.
+subsample (one genuine point per voxel) with successive halving: every few
+iterations the worse half, by the mean capped distance of the points to the
+posed reference, is dropped. The survivor is then fitted on a finer subsample
+and polished at full resolution with a Tukey cutoff that adapts to the data
+(``4.685 * 1.4826 * median |r|``, at most halving per iteration) but never drops
+below a floor, so that gross outliers (visual-hull bulges, defects) have no
+influence once the fit has converged. :func:`refine_on_points` is that last
+stage alone.
+
+Open3D's own ICP is not used: the fits need exact point-to-mesh distances and
+batching over candidates, which the raycasting scene provides directly.
 """
 
 from __future__ import annotations
@@ -286,10 +291,11 @@ class _Step:
     """One Gauss-Newton step of K candidate poses on the same points.
 
     The Tukey cutoff of each candidate is ``4.685 * 1.4826 * median(r)`` clipped
-    to ``[floor, cutoff]``, but shrinks by at most ``_SHRINK`` per step (so that
-    weakly constrained motions converge before their evidence is cut off). With ``n_keep``, the candidates are first ranked by
-    their mean capped distance ``mean(min(r, cap))`` and only the best ``n_keep``
-    (in their original order) are kept and stepped.
+    to ``[floor, cutoff]``, but shrinks by at most a factor ``_SHRINK`` per step
+    (so that weakly constrained motions converge before their evidence is cut
+    off). With ``n_keep``, the candidates are first ranked by their mean capped
+    distance ``mean(min(r, cap))`` and only the best ``n_keep`` (in their
+    original order) are kept and stepped.
 
     Attributes
     ----------
@@ -560,8 +566,9 @@ def align_reference(
         hold about 400 points.
     inlier_mm : float, default 1.0
         Distance under which a point counts as an inlier for ``fitness`` and
-        ``rmse_mm``; also the initial Tukey cutoff of the fine fit, which then
-        adapts to the residuals down to no less than ``inlier_mm / 10``.
+        ``rmse_mm``, mm. The Tukey cutoff of the fine fit starts at
+        ``max(inlier_mm, 3 coarse voxels)`` and adapts to the residuals down to
+        no less than ``inlier_mm / 10``.
     seed : int, default 0
         Seed of the reference surface sampling and of the RANSAC hypothesis.
 
@@ -617,15 +624,18 @@ def align_reference(
 
     # Fine fit: converge on a voxel subsample, then polish at full resolution.
     pick = _voxel_pick(pts, voxel_mm)
-    fpts, fnrm = pts[pick], nrm[pick]
     floor = inlier_mm / 10.0
     cutoff = max(inlier_mm, _COARSE_CUTOFF * voxel_c)
     tol = 1e-5 * ref.diag
-    if 10 <= len(fpts) <= len(pts) // 2:
+    polish = 30
+    if 10 <= len(pick) <= len(pts) // 2:
         best, _, cutoff = _robust_fit(
-            ref, fpts, best, floor_mm=floor, start_mm=cutoff, iterations=30, tol=tol, normals=fnrm
+            ref, pts[pick], best, floor_mm=floor, start_mm=cutoff, iterations=30, tol=tol, normals=nrm[pick]
         )
-    best, dist, _ = _robust_fit(ref, pts, best, floor_mm=floor, start_mm=cutoff, iterations=4, tol=tol, normals=nrm)
+        polish = 4
+    best, dist, _ = _robust_fit(
+        ref, pts, best, floor_mm=floor, start_mm=cutoff, iterations=polish, tol=tol, normals=nrm
+    )
     fitness, rmse = _summary(dist, inlier_mm)
     return Alignment(pose=ref.pose_from_w(best), fitness=fitness, rmse_mm=rmse, method="global+icp")
 

@@ -215,3 +215,45 @@ def test_console_script_runs_without_traceback(tmp_path):
     p = subprocess.run([str(exe), "recipe", "check", str(tmp_path / "x.toml")], capture_output=True, text=True)
     assert p.returncode == 2
     assert p.stderr.strip().count("\n") == 0 and "x.toml" in p.stderr and "Traceback" not in p.stderr
+
+
+@pytest.mark.slow
+def test_foreign_capture_in_metres_with_a_file_reference(tmp_path):
+    """A capture written by another program (plain json + cv2, rig in metres, 16-bit images):
+    a Ø30 sphere in a random pose, reference given as an STL file."""
+    import cv2
+    import trimesh
+
+    from inspector.parts import make_part
+    from inspector_drivers.sim.render import render_coverage, to_image
+    from inspector_drivers.sim.rig import sphere_rig
+    from inspector_drivers.sim.simulate import random_pose
+
+    rng = np.random.default_rng(42)
+    rig = sphere_rig(16)
+    part = make_part("sphere30")
+    pose = random_pose(rng, 6.0)
+    world = part.copy()
+    world.apply_transform(pose)
+    cover = render_coverage(world, rig)
+    folder = tmp_path / "foreign-sphere"
+    (folder / "images").mkdir(parents=True)
+    cams = []
+    for cam in rig.cameras:
+        img = to_image(cover[cam.name], rng=rng, noise_sigma=2.0, bit_depth=16)
+        cv2.imwrite(str(folder / "images" / f"{cam.name}.png"), img)
+        cams.append({"name": cam.name, "width": cam.width, "height": cam.height, "K": cam.K.tolist(),
+                     "R": cam.R.tolist(), "t": (cam.t / 1000.0).tolist()})
+    (folder / "rig.json").write_text(json.dumps({"units": "m", "cameras": cams}))
+    ref = tmp_path / "sphere.stl"
+    part.export(ref)
+    out = tmp_path / "out"
+    code = run_cli("run", DEFAULT, "--capture", str(folder), "--out", str(out), "--reference", str(ref), "-q")
+    res = json.loads((out / "foreign-sphere" / "result.json").read_text())
+    assert code == 0, res
+    pts = read_ply(out / "foreign-sphere" / "bcps_points.ply")
+    P = np.stack([pts["x"], pts["y"], pts["z"]], axis=1).astype(float)
+    err = np.abs(np.linalg.norm(P - pose[:3, 3], axis=1) - 15.0)
+    assert err.mean() <= 0.025, err.mean()  # 0.25 px footprint
+    pose_est = np.array(res["pose"])
+    assert np.linalg.norm(pose_est[:3, 3] - pose[:3, 3]) < 0.02
