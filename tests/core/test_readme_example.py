@@ -1,0 +1,33 @@
+"""The README's plugin example works as printed."""
+
+from __future__ import annotations
+
+import re
+import sys
+import types
+from pathlib import Path
+
+from inspector.manager import create_plugin_manager
+from inspector.recipe import parse_recipe
+
+
+def test_readme_stage_plugin_example_registers_and_validates(monkeypatch):
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    code = re.search(r"```python\n(# my_package/classify.py.*?)```", text, re.S).group(1)
+    module = types.ModuleType("my_package_classify")
+    monkeypatch.setitem(sys.modules, module.__name__, module)  # dataclasses look modules up
+    exec(compile(code, "README.md", "exec"), module.__dict__)
+    pm = create_plugin_manager(plugins=[module])
+    assert "classify.size" in pm.stages
+    recipe = parse_recipe(
+        {
+            "recipe": {"reference": "builtin:cube30"},
+            "stages": [
+                {"use": "segment.threshold"},
+                {"use": "carve.hull"},
+                {"use": "classify.size", "params": {"max_volume_mm3": 1000.0}},
+            ],
+        },
+        pm,
+    )
+    assert recipe.steps[2].params.max_volume_mm3 == 1000.0
