@@ -280,6 +280,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     _add_param_options(s, SimParams, skip={"bumps"})
 
+    from inspector import experiment
+
+    experiment.add_parser(sub)
+    from inspector_drivers.replay import importers
+
+    importers.add_parser(sub)
+
     pl = sub.add_parser("plugins", help="list stages and drivers with their parameters")
     pl.add_argument("--json", action="store_true", help="machine-readable output")
     pl.add_argument("--parts", action="store_true", help="also list the built-in parts")
@@ -303,6 +310,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _simulate(args)
         if args.command == "plugins":
             return _plugins(args)
+        if args.command == "import":
+            from inspector_drivers.replay import importers
+
+            return importers.run(args)
+        if args.command == "experiment":
+            from inspector import experiment
+
+            return experiment.run(args)
         if args.command == "recipe":
             return _recipe_check(args)
     except RecipeError as e:

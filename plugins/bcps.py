@@ -72,14 +72,22 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
     views = _views(ctx, cache)
     bounds = _bounds(ctx, p.margin_mm)
     sd_fn = lambda X: ref.signed_distance(X, pose)  # noqa: E731
+    recon = ctx.need("reconstruction", "bcps")
     out = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
+    ranges = cache.setdefault("ranges", {})
     for i, (cam, sil) in enumerate(zip(rig.cameras, sils)):
         if len(sil.contour) == 0:
             continue
         origin, dirs = cam.rays(sil.contour)
+        if i not in ranges:
+            # Only where the ray passes near the reconstruction (the hull is conservative).
+            # A pose update can move a grazing ray's optimum far along it: every pass
+            # searches the whole range.
+            ranges[i] = bk.ray_ranges(cam, sil.contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm))
         pts, dev, seg, ok = bk.select_on_rays(
-            origin, dirs, views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm, refine_levels=p.refine_levels,
-            tolerance_px=p.tolerance_px, accept_px=p.accept_px, violation_weight=p.violation_weight,
+            origin, dirs, views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm,
+            refine_levels=p.refine_levels, tolerance_px=p.tolerance_px, accept_px=p.accept_px,
+            violation_weight=p.violation_weight, t_range=ranges[i],
         )
         out["points"].append(pts[ok])
         out["deviation"].append(dev[ok])

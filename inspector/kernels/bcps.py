@@ -23,7 +23,7 @@ import numpy as np
 from inspector.kernels.silhouette import sample_bilinear
 from inspector.model import Camera
 
-__all__ = ["View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box"]
+__all__ = ["ray_ranges", "View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box"]
 
 SignedDistance = Callable[[np.ndarray], np.ndarray]
 
@@ -124,22 +124,71 @@ def _lipschitz_px_per_mm(views: Sequence[View], bounds: np.ndarray) -> float:
     return worst
 
 
-def _evaluate(origin, dirs, t, hull, sd_fn, eps, tol, weight):
-    """Hull violation (px) and selection cost on a (R, K) grid of ray parameters.
+def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight):
+    """Hull violation (px), signed distance and selection cost on a (R, K) grid of ray
+    parameters ``t`` (entries where ``valid`` is False are skipped: violation inf).
 
     The cost is the signed distance plus ``weight`` mm per pixel of violation beyond
     ``tol`` (inf beyond ``eps``): strict BCPS where the silhouettes agree, and a graceful
     choice where sub-pixel contours disagree by a fraction of a pixel (silhouette corners).
     """
     R, K = t.shape
-    X = (origin[None, None, :] + t[..., None] * dirs[:, None, :]).reshape(-1, 3)
-    viol = hull(X, eps)
-    member = viol <= eps
-    sd = np.full(len(X), np.inf)
-    if member.any():
-        sd[member] = sd_fn(X[member])
+    viol = np.full(R * K, np.inf)
+    sd = np.full(R * K, np.inf)
+    flat = np.flatnonzero(valid.ravel())
+    X = origin[None, :] + t.ravel()[flat, None] * dirs[flat // K]
+    v = hull(X, eps)
+    viol[flat] = v
+    keep = v <= eps
+    if keep.any():
+        sd[flat[keep]] = sd_fn(X[keep])
     cost = sd + weight * np.maximum(viol - tol, 0.0)
     return viol.reshape(R, K), sd.reshape(R, K), cost.reshape(R, K)
+
+
+def ray_ranges(
+    camera: Camera, uv: np.ndarray, origin: np.ndarray, dirs: np.ndarray, points: np.ndarray, radius_mm: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each contour ray can meet the reconstruction: the span, along the ray, of the
+    reconstruction's surface points within about ``radius_mm`` of it (plus that margin).
+
+    Parameters
+    ----------
+    camera : Camera
+    uv : (M, 2) float
+        Contour points the rays go through.
+    origin, dirs : (3,), (M, 3)
+        The rays.
+    points : (N, 3) float
+        Reconstruction surface points, world mm.
+    radius_mm : float
+
+    Returns
+    -------
+    t0, t1 : (M,) float
+        ``t0 > t1`` for a ray with no reconstruction point near it.
+    """
+    from scipy.spatial import cKDTree
+
+    M = len(uv)
+    t0 = np.full(M, np.inf)
+    t1 = np.full(M, -np.inf)
+    if M == 0 or len(points) == 0:
+        return t0, t1
+    puv, z = camera.project(points)
+    front = z > 0
+    puv, P = puv[front], points[front]
+    rho = radius_mm * float(np.sqrt(camera.K[0, 0] * camera.K[1, 1])) / float(np.median(z[front]))
+    lists = cKDTree(puv).query_ball_point(uv, rho)
+    lengths = np.fromiter((len(x) for x in lists), np.int64, M)
+    if lengths.sum() == 0:
+        return t0, t1
+    idx = np.concatenate([np.asarray(x, np.int64) for x in lists if len(x)])
+    ray = np.repeat(np.arange(M), lengths)
+    t = np.einsum("ij,ij->i", P[idx] - origin, dirs[ray])
+    np.minimum.at(t0, ray, t)
+    np.maximum.at(t1, ray, t)
+    return t0 - radius_mm, t1 + radius_mm
 
 
 def select_on_rays(
@@ -158,6 +207,7 @@ def select_on_rays(
     violation_weight: float = 3.0,
     max_points: int = 1_000_000,
     stack: object | None = None,
+    t_range: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """BCPS on exact rays (the ``ray`` method).
 
@@ -202,6 +252,9 @@ def select_on_rays(
     stack : hull_jit.CameraStack, optional
         ``views`` packed for the compiled kernel (:func:`hull_jit.stack_views`); when
         None the numpy reference implementation is used.
+    t_range : (t0, t1) of (M,) arrays, optional
+        Where along each ray to look (e.g. :func:`ray_ranges`), intersected with
+        ``bounds``; rays with an empty range have no candidate.
 
     Returns
     -------
@@ -219,6 +272,9 @@ def select_on_rays(
     segment = np.zeros(M)
     valid = np.zeros(M, bool)
     t0, t1 = ray_box(origin, dirs, bounds)
+    if t_range is not None:
+        t0 = np.maximum(t0, t_range[0])
+        t1 = np.minimum(t1, t_range[1])
     hit = np.flatnonzero(t1 > t0)
     others = [v for i, v in enumerate(views) if i != skip]
     if hit.size == 0 or not others:
@@ -236,7 +292,7 @@ def select_on_rays(
     lip = _lipschitz_px_per_mm(others, bounds)
     weight = violation_weight / lip  # mm per pixel of violation
     K = int(np.ceil((t1[hit] - t0[hit]).max() / step_mm)) + 1
-    chunk = max(1, max_points // K)
+    chunk = max(1, max_points // max(K, refine_samples))
     half = (refine_samples - 1) // 2
     offsets = np.linspace(-1.0, 1.0, refine_samples)
     for start in range(0, hit.size, chunk):
@@ -244,9 +300,10 @@ def select_on_rays(
         n = len(rows)
         ar = np.arange(n)
         d = dirs[rows]
-        t = np.minimum(t0[rows, None] + step_mm * np.arange(K)[None, :], t1[rows, None])
+        t = t0[rows, None] + step_mm * np.arange(K)[None, :]
+        inside = t <= t1[rows, None] + 1e-9
         eps = max(0.5 * lip * step_mm, accept_px)
-        viol, sd, cost = _evaluate(origin, d, t, hull, sd_fn, eps, tolerance_px, weight)
+        viol, sd, cost = _evaluate(origin, d, t, inside, hull, sd_fn, eps, tolerance_px, weight)
         segment[rows] = np.isfinite(sd).sum(axis=1) * step_mm
         # Best candidate, or (none) the sample closest to the hull.
         has = np.isfinite(cost).any(axis=1)
@@ -254,11 +311,12 @@ def select_on_rays(
         tbest = t[ar, k]
         vbest = viol[ar, k]
         sbest = sd[ar, k]
+        every = np.ones((n, refine_samples), bool)
         h = step_mm
         for _ in range(refine_levels):
             tt = tbest[:, None] + h * offsets[None, :]
             eps = max(0.5 * lip * h / half, accept_px)
-            v2, s2, c2 = _evaluate(origin, d, tt, hull, sd_fn, eps, tolerance_px, weight)
+            v2, s2, c2 = _evaluate(origin, d, tt, every, hull, sd_fn, eps, tolerance_px, weight)
             has = np.isfinite(c2).any(axis=1)
             k2 = np.where(has, np.argmin(c2, axis=1), np.argmin(v2, axis=1))
             tbest = tt[ar, k2]

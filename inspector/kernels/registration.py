@@ -34,7 +34,7 @@ subsample (one genuine point per voxel) with successive halving: every few
 iterations the worse half, by the mean capped distance of the points to the
 posed reference, is dropped. The survivor is then fitted on a finer subsample
 and polished at full resolution with a Tukey cutoff that adapts to the data
-(``4.685 * 1.4826 * median |r|``, at most halving per iteration) but never drops
+(``4.685 * 1.4826 * median |r|``, shrinking gradually) but never drops
 below a floor, so that gross outliers (visual-hull bulges, defects) have no
 influence once the fit has converged. :func:`refine_on_points` is that last
 stage alone.
@@ -56,8 +56,10 @@ __all__ = ["align_reference", "refine_on_points"]
 
 _REG = o3d.pipelines.registration
 
-#: Number of points aimed at in the coarse subsample (sets its voxel size).
+#: Number of points aimed at in the coarse subsample (sets its voxel size), and
+#: the fewest it may have whatever ``voxel_mm``.
 _COARSE_POINTS = 400
+_COARSE_MIN_POINTS = 100
 #: Reference surface samples for the principal axes and the FPFH features.
 _REF_SAMPLES = 1500
 #: Variance ratio above which two principal axes are treated as interchangeable,
@@ -84,8 +86,10 @@ _MAD_SIGMA = 1.4826
 _REL_DECREASE = 1e-4
 #: Correspondences whose normals disagree more than this (cosine) are ignored.
 _NORMAL_COS = -0.5
-#: The Tukey cutoff of a fit shrinks by at most this factor per iteration.
+#: The Tukey cutoff of a fit shrinks by at most this factor per iteration (faster
+#: in the fine stage of the global alignment, which starts from a converged pose).
 _SHRINK = 0.5
+_FINE_SHRINK = 0.25
 
 
 def _cube_group() -> np.ndarray:
@@ -291,7 +295,7 @@ class _Step:
     """One Gauss-Newton step of K candidate poses on the same points.
 
     The Tukey cutoff of each candidate is ``4.685 * 1.4826 * median(r)`` clipped
-    to ``[floor, cutoff]``, but shrinks by at most a factor ``_SHRINK`` per step
+    to ``[floor, cutoff]``, but shrinks by at most a factor ``shrink`` per step
     (so that weakly constrained motions converge before their evidence is cut
     off). With ``n_keep``, the candidates are first ranked by their mean capped
     distance ``mean(min(r, cap))`` and only the best ``n_keep`` (in their
@@ -326,6 +330,7 @@ class _Step:
         *,
         n_keep: int | None = None,
         cap: float = np.inf,
+        shrink: float = _SHRINK,
     ) -> None:
         q = _transform(W, x)
         c, n = ref.closest(q)
@@ -339,7 +344,7 @@ class _Step:
                 k = self.keep
                 W, q, n, d, r, cutoff, floor = W[k], q[k], n[k], d[k], r[k], cutoff[k], floor[k]
         target = np.maximum(floor, np.minimum(cutoff, _TUKEY_C * _MAD_SIGMA * np.median(r, axis=1)))
-        self.cutoff = np.maximum(target, _SHRINK * cutoff)  # shrink gradually (inf stays inf)
+        self.cutoff = np.maximum(target, shrink * cutoff)  # shrink gradually (inf stays inf)
         self.cutoff[~np.isfinite(cutoff)] = target[~np.isfinite(cutoff)]
         self.settled = self.cutoff <= target
         cutoff = self.cutoff
@@ -352,8 +357,8 @@ class _Step:
             nq = np.matmul(normals[None], W[:, :3, :3].transpose(0, 2, 1))
             w = w * (np.sum(nq * n, axis=2) > _NORMAL_COS)
         sw = w.sum(axis=1)
-        ok = sw > 0
-        sw = np.where(ok, sw, 1.0)
+        ok = np.count_nonzero(w, axis=1) >= 6  # fewer cannot fix 6 degrees of freedom
+        sw = np.where(sw > 0, sw, 1.0)
         q0 = np.matmul(w[:, None, :], q)[:, 0] / sw[:, None]
         lever = q - q0[:, None, :]
         scale = np.sqrt(np.sum(w * np.sum(lever * lever, axis=2), axis=1) / sw)
@@ -366,6 +371,10 @@ class _Step:
         H = H + np.eye(6) * (1e-9 * tr / 6.0 + 1e-12)[:, None, None]
         xi = -np.linalg.solve(H, b[..., None])[..., 0]
         xi[~ok] = 0.0
+        # Trust region: no point should move farther than the cutoff in one step
+        # (beyond it the weights, hence the linearisation, say nothing).
+        size = np.linalg.norm(xi, axis=1)
+        xi *= np.minimum(1.0, cutoff / np.maximum(size, 1e-300))[:, None]
         self.move = np.sqrt(np.maximum(np.sum(xi * np.matmul(H, xi[..., None])[..., 0], axis=1), 0.0) / sw)
         self.cost = np.sum(w * r * r, axis=1) / sw
         dR = _rodrigues(xi[:, :3] / scale[:, None])
@@ -388,6 +397,7 @@ def _robust_fit(
     iterations: int,
     tol: float,
     normals: np.ndarray | None = None,
+    shrink: float = _SHRINK,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Iteratively reweighted Gauss-Newton of points onto the reference surface.
 
@@ -401,7 +411,7 @@ def _robust_fit(
     floor_mm, start_mm : float
         Lowest and initial Tukey cutoff, mm. The cutoff follows
         ``4.685 * 1.4826 * median |r|`` between these bounds, never increasing
-        and at most halving per iteration.
+        and shrinking by at most a factor ``shrink`` per iteration.
     iterations : int
         Maximum number of Gauss-Newton steps.
     tol : float
@@ -410,6 +420,8 @@ def _robust_fit(
         below ``_REL_DECREASE`` (sliding along a near-symmetry).
     normals : (N, 3) float, optional
         World unit normals of ``points``, used to reject wrong-side matches.
+    shrink : float
+        Slowest allowed decrease of the cutoff per iteration, in (0, 1].
 
     Returns
     -------
@@ -423,7 +435,7 @@ def _robust_fit(
     cutoff = max(start_mm, floor_mm)
     Wk = W[None]
     for _ in range(iterations):
-        step = _Step(ref, points, Wk, np.array([cutoff]), np.array([floor_mm]), normals)
+        step = _Step(ref, points, Wk, np.array([cutoff]), np.array([floor_mm]), normals, shrink=shrink)
         Wk, cutoff = step.W, float(step.cutoff[0])
         move, cost = float(step.move[0]), float(step.cost[0])
         if step.settled[0] and (move < tol or move * move < _REL_DECREASE * cost):
@@ -485,7 +497,7 @@ def _ransac_hypothesis(
     param = o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=_FPFH_MAX_NN)
     fs = _REG.compute_fpfh_feature(src, param)
     ft = _REG.compute_fpfh_feature(tgt, param)
-    o3d.utility.random.seed(int(seed))
+    o3d.utility.random.seed(int(seed))  # Open3D's RNG is global; RANSAC is its only user here
     res = _REG.registration_ransac_based_on_feature_matching(
         src,
         tgt,
@@ -561,9 +573,9 @@ def align_reference(
         Triangles of the reference mesh, indices into ``ref_vertices``; the mesh
         is expected to be watertight.
     voxel_mm : float, default 1.0
-        Voxel size of the subsample used by the fine fit, mm; also the smallest
-        voxel of the coarse (hypothesis) subsample, which is otherwise sized to
-        hold about 400 points.
+        Voxel size of the subsample used by the fine fit, mm (one point kept per
+        voxel). Also the voxel of the coarse (hypothesis) subsample, enlarged
+        to keep it near 400 points or reduced to keep it above about 100.
     inlier_mm : float, default 1.0
         Distance under which a point counts as an inlier for ``fitness`` and
         ``rmse_mm``, mm. The Tukey cutoff of the fine fit starts at
@@ -601,7 +613,7 @@ def align_reference(
     rng = np.random.default_rng(seed)
 
     # Coarse subsamples of the reconstruction and of the reference surface.
-    voxel_c = max(voxel_mm, float(np.sqrt(ref.area / _COARSE_POINTS)))
+    voxel_c = float(np.clip(voxel_mm, np.sqrt(ref.area / _COARSE_POINTS), np.sqrt(ref.area / _COARSE_MIN_POINTS)))
     pick = _voxel_pick(pts, voxel_c)
     if len(pick) < 10:
         pick = np.arange(len(pts))
@@ -630,11 +642,12 @@ def align_reference(
     polish = 30
     if 10 <= len(pick) <= len(pts) // 2:
         best, _, cutoff = _robust_fit(
-            ref, pts[pick], best, floor_mm=floor, start_mm=cutoff, iterations=30, tol=tol, normals=nrm[pick]
+            ref, pts[pick], best, floor_mm=floor, start_mm=cutoff, iterations=30, tol=tol, normals=nrm[pick],
+            shrink=_FINE_SHRINK,
         )
         polish = 4
     best, dist, _ = _robust_fit(
-        ref, pts, best, floor_mm=floor, start_mm=cutoff, iterations=polish, tol=tol, normals=nrm
+        ref, pts, best, floor_mm=floor, start_mm=cutoff, iterations=polish, tol=tol, normals=nrm, shrink=_FINE_SHRINK
     )
     fitness, rmse = _summary(dist, inlier_mm)
     return Alignment(pose=ref.pose_from_w(best), fitness=fitness, rmse_mm=rmse, method="global+icp")

@@ -1,0 +1,365 @@
+"""Registration kernels on synthetic reconstructions of known parts in known poses.
+
+Each "reconstruction" is sampled on the true posed surface (+ 0.01 mm noise), then
+optionally corrupted like a visual hull (outward bulges near sharp edges) and by
+defects (a dent and a bump). A recovered pose is judged by the mean distance of
+true-surface samples to the reference posed by it, so that the equivalent poses
+of symmetric parts (box, sphere) all pass.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from inspector.kernels.registration import align_reference, refine_on_points
+from inspector.model import Alignment
+
+N_POINTS = 20_000
+NOISE_MM = 0.01
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _box() -> trimesh.Trimesh:
+    return trimesh.creation.box((30.0, 30.0, 30.0))
+
+
+def _part() -> trimesh.Trimesh:
+    """Asymmetric part: a 30 mm box with an off-centre cylinder on top."""
+    cyl = trimesh.creation.cylinder(radius=6.0, height=20.0, sections=48)
+    cyl.apply_translation([8.0, 5.0, 12.0])
+    return trimesh.boolean.union([_box(), cyl], engine="manifold")
+
+
+def _sphere() -> trimesh.Trimesh:
+    return trimesh.creation.icosphere(subdivisions=4, radius=15.0)
+
+
+@pytest.fixture(scope="module")
+def shapes() -> dict[str, trimesh.Trimesh]:
+    out = {"box": _box(), "part": _part(), "sphere": _sphere()}
+    for m in out.values():
+        assert m.is_watertight
+    return out
+
+
+def random_pose(rng: np.random.Generator, t_max: float = 10.0) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=int(rng.integers(2**31))).as_matrix()
+    d = rng.normal(size=3)
+    T[:3, 3] = d / np.linalg.norm(d) * rng.uniform(0.0, t_max)
+    return T
+
+
+def posed(mesh: trimesh.Trimesh, T: np.ndarray) -> trimesh.Trimesh:
+    m = mesh.copy()
+    m.apply_transform(T)
+    return m
+
+
+def sample_surface(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Area-uniform samples (n, 3) and their face normals (n, 3)."""
+    area = mesh.area_faces
+    idx = rng.choice(len(area), size=n, p=area / area.sum())
+    r1, r2 = np.sqrt(rng.random(n)), rng.random(n)
+    tri = mesh.triangles[idx]
+    pts = (1 - r1)[:, None] * tri[:, 0] + (r1 * (1 - r2))[:, None] * tri[:, 1] + (r1 * r2)[:, None] * tri[:, 2]
+    return pts, mesh.face_normals[idx]
+
+
+def _distance_to_segments(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.empty(len(p))
+    ab = b - a
+    ab2 = np.einsum("ij,ij->i", ab, ab)
+    for s in range(0, len(p), 2000):
+        ap = p[s : s + 2000, None, :] - a[None]
+        t = np.clip(np.einsum("nkj,kj->nk", ap, ab) / ab2, 0.0, 1.0)
+        out[s : s + 2000] = np.linalg.norm(ap - t[..., None] * ab[None], axis=2).min(axis=1)
+    return out
+
+
+def reconstruction(
+    mesh: trimesh.Trimesh,
+    rng: np.random.Generator,
+    *,
+    n: int = N_POINTS,
+    bulge_mm: float = 0.0,
+    defects: bool = False,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Points and normals on ``mesh`` (already posed), corrupted on request.
+
+    ``bulge_mm``: points within 3 mm of a sharp edge are pushed outward by up to
+    ``bulge_mm`` (most at the edge), as a visual hull does; a part without sharp
+    edges gets 6 bulging patches of radius 5 mm instead. ``defects``: the points
+    in a 3 mm ball are moved 1.5 mm inside (a dent) and those within 4 mm of
+    another point are pushed out by up to 3 mm (a bump).
+    """
+    p, nrm = sample_surface(mesh, n, rng)
+    p = p.copy()
+    if bulge_mm > 0:
+        sharp = mesh.face_adjacency_angles > np.radians(30.0)
+        if np.any(sharp):
+            e = mesh.vertices[mesh.face_adjacency_edges[sharp]]
+            d = _distance_to_segments(p, e[:, 0], e[:, 1])
+            p += nrm * (bulge_mm * np.clip(1.0 - d / 3.0, 0.0, None) ** 2)[:, None]
+        else:
+            for c in p[rng.choice(len(p), 6, replace=False)]:
+                d = np.linalg.norm(p - c, axis=1)
+                p += nrm * (bulge_mm * np.clip(1.0 - d / 5.0, 0.0, None) ** 2)[:, None]
+    if defects:
+        c_dent, c_bump = p[rng.choice(len(p), 2, replace=False)]
+        dent = np.linalg.norm(p - c_dent, axis=1) < 3.0
+        p[dent] -= 1.5 * nrm[dent]
+        d = np.linalg.norm(p - c_bump, axis=1)
+        p += nrm * (3.0 * 0.5 * (1.0 + np.cos(np.pi * np.clip(d / 4.0, 0.0, 1.0))))[:, None]
+    p += rng.normal(0.0, NOISE_MM, p.shape)
+    return p, nrm
+
+
+def mean_surface_error(true_mesh: trimesh.Trimesh, ref: trimesh.Trimesh, pose: np.ndarray, seed: int = 0) -> float:
+    """Mean |distance| of samples of the true surface to the reference posed by ``pose``, mm."""
+    s, _ = sample_surface(true_mesh, 4000, np.random.default_rng(seed))
+    m = posed(ref, pose)
+    tm = o3d.t.geometry.TriangleMesh()
+    tm.vertex.positions = o3d.core.Tensor(m.vertices.astype(np.float32))
+    tm.triangle.indices = o3d.core.Tensor(m.faces.astype(np.int32))
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(tm)
+    return float(scene.compute_distance(o3d.core.Tensor(s.astype(np.float32))).numpy().mean())
+
+
+def rotation_error_deg(A: np.ndarray, B: np.ndarray) -> float:
+    return float(np.degrees(Rotation.from_matrix(A[:3, :3].T @ B[:3, :3]).magnitude()))
+
+
+def perturb(T: np.ndarray, rng: np.random.Generator, deg: float = 0.5, mm: float = 0.3) -> np.ndarray:
+    axis, shift = rng.normal(size=3), rng.normal(size=3)
+    D = np.eye(4)
+    D[:3, :3] = Rotation.from_rotvec(axis / np.linalg.norm(axis) * np.radians(deg)).as_matrix()
+    D[:3, 3] = shift / np.linalg.norm(shift) * mm
+    return D @ T
+
+
+def _check_alignment(a: Alignment, method: str) -> None:
+    assert isinstance(a, Alignment)
+    assert a.method == method
+    assert a.pose.shape == (4, 4)
+    R = a.pose[:3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    assert np.linalg.det(R) > 0
+    np.testing.assert_array_equal(a.pose[3], [0, 0, 0, 1])
+    assert 0.0 <= a.fitness <= 1.0
+    assert a.rmse_mm >= 0.0
+
+
+# --------------------------------------------------------------------------- align_reference
+
+
+@pytest.mark.parametrize("name", ["box", "part", "sphere"])
+def test_align_exact_data_any_orientation(shapes, name):
+    mesh = shapes[name]
+    rng = np.random.default_rng({"box": 1, "part": 2, "sphere": 3}[name])
+    for _ in range(3):
+        T = random_pose(rng)
+        true = posed(mesh, T)
+        pts, nrm = reconstruction(true, rng)
+        a = align_reference(pts, nrm, mesh.vertices, mesh.faces)
+        _check_alignment(a, "global+icp")
+        assert mean_surface_error(true, mesh, a.pose) < 0.02
+        assert a.fitness > 0.999
+        assert a.rmse_mm < 3 * NOISE_MM
+        if name == "sphere":  # any rotation is right, the centre must be
+            assert np.linalg.norm(a.pose[:3, 3] - T[:3, 3]) < 0.02
+
+
+def test_align_asymmetric_part_recovers_the_pose(shapes):
+    mesh = shapes["part"]
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        T = random_pose(rng)
+        pts, nrm = reconstruction(posed(mesh, T), rng)
+        a = align_reference(pts, nrm, mesh.vertices, mesh.faces)
+        assert rotation_error_deg(a.pose, T) < 0.2
+        assert np.linalg.norm(a.pose[:3, 3] - T[:3, 3]) < 0.05
+
+
+def test_align_far_translation(shapes):
+    mesh = shapes["part"]
+    rng = np.random.default_rng(12)
+    T = random_pose(rng)
+    T[:3, 3] = [14.0, -12.0, 8.0]  # ~20 mm
+    pts, nrm = reconstruction(posed(mesh, T), rng)
+    a = align_reference(pts, nrm, mesh.vertices, mesh.faces)
+    assert rotation_error_deg(a.pose, T) < 0.2
+    assert np.linalg.norm(a.pose[:3, 3] - T[:3, 3]) < 0.05
+
+
+@pytest.mark.parametrize("name", ["box", "part", "sphere"])
+def test_align_robust_to_bulges_and_defects(shapes, name):
+    mesh = shapes[name]
+    rng = np.random.default_rng({"box": 21, "part": 22, "sphere": 23}[name])
+    for bulge in (1.0, 2.0):
+        T = random_pose(rng)
+        true = posed(mesh, T)
+        pts, nrm = reconstruction(true, rng, bulge_mm=bulge, defects=True)
+        a = align_reference(pts, nrm, mesh.vertices, mesh.faces)
+        _check_alignment(a, "global+icp")
+        assert mean_surface_error(true, mesh, a.pose) < 0.1
+        if name == "part":
+            assert rotation_error_deg(a.pose, T) < 1.0
+
+
+@pytest.mark.parametrize("scale", [0.95, 1.05])
+def test_align_part_with_scale_error(shapes, scale):
+    """A part a few percent off in size is still centred and oriented."""
+    mesh = shapes["part"]
+    rng = np.random.default_rng(31 if scale < 1 else 32)
+    T = random_pose(rng)
+    c = mesh.center_mass
+    scaled = mesh.copy()
+    scaled.apply_translation(-c)
+    scaled.apply_scale(scale)
+    scaled.apply_translation(c)
+    pts, nrm = reconstruction(posed(scaled, T), rng, bulge_mm=1.0)
+    a = align_reference(pts, nrm, mesh.vertices, mesh.faces)
+    assert rotation_error_deg(a.pose, T) < 1.0
+    assert np.linalg.norm((a.pose[:3, :3] - T[:3, :3]) @ c + a.pose[:3, 3] - T[:3, 3]) < 0.25
+
+
+def test_align_is_deterministic(shapes):
+    mesh = shapes["box"]
+    rng = np.random.default_rng(41)
+    pts, nrm = reconstruction(posed(mesh, random_pose(rng)), rng, n=5000, bulge_mm=1.0, defects=True)
+    a = align_reference(pts, nrm, mesh.vertices, mesh.faces, seed=3)
+    b = align_reference(pts, nrm, mesh.vertices, mesh.faces, seed=3)
+    np.testing.assert_array_equal(a.pose, b.pose)
+    assert (a.fitness, a.rmse_mm) == (b.fitness, b.rmse_mm)
+
+
+def test_align_reference_frame_off_origin(shapes):
+    """CAD coordinates far from the origin: the pose still maps reference -> world."""
+    mesh = shapes["part"].copy()
+    mesh.apply_translation([500.0, -300.0, 120.0])
+    rng = np.random.default_rng(51)
+    T = random_pose(rng)
+    T[:3, 3] -= T[:3, :3] @ mesh.center_mass  # keep the part near the world origin
+    true = posed(mesh, T)
+    pts, nrm = reconstruction(true, rng)
+    a = align_reference(pts, nrm, mesh.vertices, mesh.faces)
+    assert mean_surface_error(true, mesh, a.pose) < 0.02
+    assert rotation_error_deg(a.pose, T) < 0.2
+
+
+# --------------------------------------------------------------------------- refine_on_points
+
+
+@pytest.mark.parametrize("name", ["box", "part", "sphere"])
+def test_refine_recovers_from_perturbed_pose(shapes, name):
+    mesh = shapes[name]
+    rng = np.random.default_rng({"box": 61, "part": 62, "sphere": 63}[name])
+    for _ in range(2):
+        T = random_pose(rng)
+        true = posed(mesh, T)
+        pts, _ = sample_surface(true, 5000, rng)
+        start = perturb(T, rng)
+        assert mean_surface_error(true, mesh, start) > 0.05
+        a = refine_on_points(pts, mesh.vertices, mesh.faces, start)
+        _check_alignment(a, "bcps-refine")
+        assert mean_surface_error(true, mesh, a.pose) < 0.005
+        assert a.fitness == 1.0
+        assert a.rmse_mm < 0.005
+
+
+@pytest.mark.parametrize("name", ["box", "part"])
+def test_refine_ignores_inward_outliers(shapes, name):
+    mesh = shapes[name]
+    rng = np.random.default_rng({"box": 71, "part": 72}[name])
+    T = random_pose(rng)
+    true = posed(mesh, T)
+    pts, nrm = sample_surface(true, 5000, rng)
+    bad = rng.random(len(pts)) < 0.05
+    pts[bad] -= 1.0 * nrm[bad]
+    a = refine_on_points(pts, mesh.vertices, mesh.faces, perturb(T, rng))
+    assert mean_surface_error(true, mesh, a.pose) < 0.005
+    assert 0.93 < a.fitness < 0.97  # the outliers are > robust_mm away (bar a few near edges)
+
+
+def test_refine_zero_iterations_keeps_the_pose(shapes):
+    mesh = shapes["box"]
+    rng = np.random.default_rng(81)
+    T = random_pose(rng)
+    pts, _ = sample_surface(posed(mesh, T), 500, rng)
+    start = perturb(T, rng)
+    a = refine_on_points(pts, mesh.vertices, mesh.faces, start, iterations=0)
+    np.testing.assert_allclose(a.pose, start, atol=1e-12)
+
+
+# --------------------------------------------------------------------------- bad inputs
+
+
+@pytest.fixture(scope="module")
+def small_case(shapes):
+    mesh = shapes["box"]
+    pts, nrm = sample_surface(mesh, 200, np.random.default_rng(91))
+    return pts, nrm, mesh.vertices.copy(), mesh.faces.copy()
+
+
+def _with_nan(a: np.ndarray) -> np.ndarray:
+    b = np.array(a, dtype=float)
+    b.flat[1] = np.nan
+    return b
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        (lambda p, n, v, f: (p[:, :2], n, v, f), "points"),
+        (lambda p, n, v, f: (p[:5], n[:5], v, f), "points"),
+        (lambda p, n, v, f: (_with_nan(p), n, v, f), "points"),
+        (lambda p, n, v, f: (p, n[:-1], v, f), "normals"),
+        (lambda p, n, v, f: (p, _with_nan(n), v, f), "normals"),
+        (lambda p, n, v, f: (p, np.zeros_like(n), v, f), "normals"),
+        (lambda p, n, v, f: (p, n, v[:, :2], f), "ref_vertices"),
+        (lambda p, n, v, f: (p, n, _with_nan(v), f), "ref_vertices"),
+        (lambda p, n, v, f: (p, n, v, f[:, :2]), "ref_faces"),
+        (lambda p, n, v, f: (p, n, v, f + len(v)), "ref_faces"),
+        (lambda p, n, v, f: (p, n, v, f + 0.5), "ref_faces"),
+    ],
+)
+def test_align_rejects_bad_arrays(small_case, change, match):
+    with pytest.raises(ValueError, match=match):
+        align_reference(*change(*small_case))
+
+
+@pytest.mark.parametrize("kw", [{"voxel_mm": 0.0}, {"inlier_mm": -1.0}, {"voxel_mm": np.nan}])
+def test_align_rejects_bad_parameters(small_case, kw):
+    with pytest.raises(ValueError):
+        align_reference(*small_case, **kw)
+
+
+def test_refine_rejects_bad_inputs(small_case):
+    pts, _, v, f = small_case
+    pose = np.eye(4)
+    with pytest.raises(ValueError, match="points"):
+        refine_on_points(pts[:, :2], v, f, pose)
+    with pytest.raises(ValueError, match="points"):
+        refine_on_points(_with_nan(pts), v, f, pose)
+    with pytest.raises(ValueError, match="ref_vertices"):
+        refine_on_points(pts, _with_nan(v), f, pose)
+    with pytest.raises(ValueError, match="ref_faces"):
+        refine_on_points(pts, v, f[:, :2], pose)
+    with pytest.raises(ValueError, match="pose"):
+        refine_on_points(pts, v, f, np.eye(3))
+    with pytest.raises(ValueError, match="pose"):
+        refine_on_points(pts, v, f, _with_nan(pose))
+    with pytest.raises(ValueError, match="pose"):
+        refine_on_points(pts, v, f, np.diag([2.0, 1.0, 1.0, 1.0]))
+    with pytest.raises(ValueError, match="robust_mm"):
+        refine_on_points(pts, v, f, pose, robust_mm=0.0)
+    with pytest.raises(ValueError, match="iterations"):
+        refine_on_points(pts, v, f, pose, iterations=-1)
