@@ -28,7 +28,7 @@ class RayParams:
     refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
     refine_robust_mm: float = param(0.1, "robust scale of the re-alignment (points beyond are down-weighted), mm", min=0.001)
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
-    accept_px: float = param(0.5, "largest hull violation of a selected point, px (beyond: the ray has no point)", min=0.0, max=5.0)
+    accept_px: float = param(1.0, "largest hull violation of a selected point, px (beyond: the ray has no point)", min=0.0, max=5.0)
     violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0)
     backend: Literal["numba", "numpy"] = param("numba", "hull kernel: compiled (numba) or the numpy reference")
     margin_mm: float = param(2.0, "margin added around the reconstruction's bounds for the rays, mm", min=0.0)

@@ -37,6 +37,13 @@ class SegmentParams:
     subpixel: Literal["area", "linear"] = param(
         "area", "sub-pixel contour: 'area' (coverage summed across the edge, exact for straight edges) or 'linear' (marching squares)"
     )
+    smooth_px: float = param(
+        -1.0,
+        "Gaussian smoothing of the coverage before contouring, px; hard-edged (binary) images need ~1-2 px to "
+        "turn their pixel staircase into a straight edge; -1: automatic (smooths only images without anti-aliasing)",
+        min=-1.0,
+        max=10.0,
+    )
     min_area_px: int = param(50, "connected components smaller than this are noise", min=1)
 
 
@@ -49,6 +56,18 @@ def _denoise(grey: np.ndarray, p: SegmentParams) -> np.ndarray:
     if p.median == "full":
         return med
     return np.where(np.abs(grey - med) > p.impulse_threshold, med, grey)
+
+
+#: Smoothing of hard-edged images, px (binary cube: mean error 0.25 px unsmoothed, 0.13 px at 1.0, 0.12 at 1.5 with more outliers).
+AUTO_SMOOTH_PX = 1.0
+
+
+def _hard_edged(raw: np.ndarray) -> bool:
+    """True when the image has (almost) no anti-aliased edge pixels: a binary silhouette."""
+    mask = raw >= 0.5
+    edge = mask ^ np.roll(mask, 1, axis=0) | mask ^ np.roll(mask, 1, axis=1)
+    partial = np.count_nonzero((raw > 0.2) & (raw < 0.8))
+    return partial < 0.1 * max(np.count_nonzero(edge), 1)
 
 
 def segment_image(
@@ -65,6 +84,12 @@ def segment_image(
     level = sk.otsu_level(signal) if p.threshold == "otsu" else p.level
     soft, bg_level, fg_level = sk.coverage(signal, level)
     raw = (signal - np.float32(bg_level)) * np.float32(1.0 / max(fg_level - bg_level, 1e-6))
+    sigma = p.smooth_px if p.smooth_px >= 0 else (AUTO_SMOOTH_PX if _hard_edged(raw) else 0.0)
+    if sigma > 0:
+        import cv2
+
+        raw = cv2.GaussianBlur(raw, (0, 0), sigma)
+        soft = np.clip(raw, 0.0, 1.0)
     if fg_level - bg_level < 10.0:
         raise StageError(f"camera {camera}: empty silhouette (no contrast between object and background)")
     mask = sk.largest_components(soft >= 0.5, p.min_area_px)

@@ -203,7 +203,7 @@ def select_on_rays(
     refine_levels: int = 2,
     refine_samples: int = 21,
     tolerance_px: float = 0.05,
-    accept_px: float = 0.5,
+    accept_px: float = 1.0,
     violation_weight: float = 3.0,
     max_points: int = 1_000_000,
     stack: object | None = None,

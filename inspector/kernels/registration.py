@@ -613,7 +613,8 @@ def align_reference(
     rng = np.random.default_rng(seed)
 
     # Coarse subsamples of the reconstruction and of the reference surface.
-    voxel_c = float(np.clip(voxel_mm, np.sqrt(ref.area / _COARSE_POINTS), np.sqrt(ref.area / _COARSE_MIN_POINTS)))
+    lo, hi = np.sqrt(ref.area / _COARSE_POINTS), np.sqrt(ref.area / _COARSE_MIN_POINTS)
+    voxel_c = float(np.clip(voxel_mm, lo, hi))
     pick = _voxel_pick(pts, voxel_c)
     if len(pick) < 10:
         pick = np.arange(len(pts))
@@ -639,16 +640,12 @@ def align_reference(
     floor = inlier_mm / 10.0
     cutoff = max(inlier_mm, _COARSE_CUTOFF * voxel_c)
     tol = 1e-5 * ref.diag
+    fit = dict(floor_mm=floor, tol=tol, shrink=_FINE_SHRINK)
     polish = 30
     if 10 <= len(pick) <= len(pts) // 2:
-        best, _, cutoff = _robust_fit(
-            ref, pts[pick], best, floor_mm=floor, start_mm=cutoff, iterations=30, tol=tol, normals=nrm[pick],
-            shrink=_FINE_SHRINK,
-        )
+        best, _, cutoff = _robust_fit(ref, pts[pick], best, start_mm=cutoff, iterations=30, normals=nrm[pick], **fit)
         polish = 4
-    best, dist, _ = _robust_fit(
-        ref, pts, best, floor_mm=floor, start_mm=cutoff, iterations=polish, tol=tol, normals=nrm, shrink=_FINE_SHRINK
-    )
+    best, dist, _ = _robust_fit(ref, pts, best, start_mm=cutoff, iterations=polish, normals=nrm, **fit)
     fitness, rmse = _summary(dist, inlier_mm)
     return Alignment(pose=ref.pose_from_w(best), fitness=fitness, rmse_mm=rmse, method="global+icp")
 
