@@ -198,7 +198,10 @@ def _demo(args: argparse.Namespace) -> int:
             pos = ", ".join(f"{x:.1f}" for x in dfc["position"])
             print(f"  defect: {dfc['kind']} material at ({pos}) mm, {dfc['n_points']} points, worst {dfc['worst_mm']:+.3f} mm")
         pts = read_ply(out / "results" / name / "bcps_points.ply")
-        print(f"  outputs: {out / 'results' / name} (result.json, bcps_points.ply [{len(pts['x'])} pts], reconstruction.ply)")
+        from inspector.report import render_report
+
+        png = render_report(out / "results" / name)
+        print(f"  outputs: {out / 'results' / name} (result.json, bcps_points.ply [{len(pts['x'])} pts], reconstruction.ply, {png.name})")
     expected = {"cube-good": "pass", "cube-notched": "fail"}
     got = {name: json.loads((out / "results" / name / "result.json").read_text())["verdict"] for name in expected}
     if got != expected:
@@ -286,6 +289,9 @@ def build_parser() -> argparse.ArgumentParser:
     from inspector_drivers.replay import importers
 
     importers.add_parser(sub)
+    from inspector import report
+
+    report.add_parser(sub)
 
     pl = sub.add_parser("plugins", help="list stages and drivers with their parameters")
     pl.add_argument("--json", action="store_true", help="machine-readable output")
@@ -310,6 +316,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _simulate(args)
         if args.command == "plugins":
             return _plugins(args)
+        if args.command == "report":
+            from inspector import report
+
+            return report.run(args)
         if args.command == "import":
             from inspector_drivers.replay import importers
 

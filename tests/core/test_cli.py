@@ -257,3 +257,15 @@ def test_foreign_capture_in_metres_with_a_file_reference(tmp_path):
     assert err.mean() <= 0.025, err.mean()  # 0.25 px footprint
     pose_est = np.array(res["pose"])
     assert np.linalg.norm(pose_est[:3, 3] - pose[:3, 3]) < 0.02
+
+
+@pytest.mark.slow
+def test_report_draws_the_deviation_picture(e2e):
+    import cv2
+
+    _, out = e2e
+    assert run_cli("report", str(out)) == 0
+    img = cv2.imread(str(out / "notched" / "deviation.png"))
+    assert img is not None and img.shape[0] > 300 and img.shape[1] > 800
+    # Not a blank page: the scatter and the colour bar put many colours on it.
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 50
