@@ -292,6 +292,9 @@ def build_parser() -> argparse.ArgumentParser:
     from inspector import report
 
     report.add_parser(sub)
+    from inspector import bench
+
+    bench.add_parser(sub)
 
     pl = sub.add_parser("plugins", help="list stages and drivers with their parameters")
     pl.add_argument("--json", action="store_true", help="machine-readable output")
@@ -316,6 +319,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _simulate(args)
         if args.command == "plugins":
             return _plugins(args)
+        if args.command == "bench":
+            from inspector import bench
+
+            return bench.run(args)
         if args.command == "report":
             from inspector import report
 

@@ -1,0 +1,606 @@
+"""``inspector bench``: the issue's performance targets, measured in one command.
+
+Targets (16 images of 1024x1024, the 2-core production machine):
+
+1. cycle: a full inspection in the batch runner (read the capture folder, every stage of
+   the recipe, write the outputs) in **<= 1.0 s** median, interpreter start excluded;
+2. memory: peak resident memory of the process **<= 1.5 GB** (1.5e9 bytes);
+3. carving: :func:`inspector.kernels.carving.carve` at 0.1 mm at least **10x faster**
+   than Open3D's ``VoxelGrid.carve_silhouette`` at 0.25 mm on the same masks.
+
+How it is measured
+------------------
+- A capture is simulated (``--part``, ``--seed``, ``--cameras``, ``--size``,
+  ``--mm-per-px``) in a child process, so its rendering never counts in this process's
+  peak memory, and written to a temporary capture folder without ``truth/`` (a production
+  capture has none). ``--capture DIR`` uses an existing folder instead (its ``truth/``, if
+  any, is dropped after reading, so truth statistics never count in the cycle).
+- The batch path of ``inspector run`` (:func:`inspector.runner.run_batch`) inspects that
+  folder ``1 + --runs`` times in this process, writing the outputs to a temporary folder;
+  the first run (Numba compilation, lazy imports, caches) is left out of the statistics.
+  Per run: ``load`` and each stage (``result.timings_s``), ``outputs`` (writing the result
+  folder and the ``on_result`` hook: the rest of the run) and ``cycle`` (the whole run).
+- Memory: ``resource.getrusage(RUSAGE_SELF).ru_maxrss`` after the runs (the process's
+  high-water mark, imports included), and its increase over the warm-up and timed runs.
+- Carving comparison, after the memory figure is taken: the capture's images are
+  segmented with :func:`inspector_plugins.segment.segment_image` (the recipe's segment
+  parameters); both carvers get the same masks and the same box
+  (:func:`~inspector.kernels.carving.default_bounds`). Ours: ``carve(...)`` at
+  ``--carve-voxel``, median of ``--carve-runs``. Open3D: ``VoxelGrid.create_dense`` over
+  the box at ``--open3d-voxel`` then ``carve_silhouette`` per camera (float32 mask images,
+  ``keep_voxels_outside_image=False``), once. The ratio uses Open3D's
+  ``carve_silhouette`` calls only (not ``create_dense``) against the whole ``carve`` call
+  (distance transforms, cell tests, surface points and display mesh): the conservative
+  ratio. A grid that would need more than ``--open3d-max-gb`` (about 100 bytes per voxel)
+  is refused with a message. As a sanity check, the fraction of our surface points that
+  fall in a voxel Open3D kept is reported (about 1 when both use the cameras alike).
+
+Exit status: 0 every measured target met, 1 a target not met, 3 an inspection failed.
+Importing this module is cheap: numpy, Open3D and the pipeline are imported when used.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "CYCLE_TARGET_S",
+    "MEMORY_TARGET_MB",
+    "CARVE_RATIO_TARGET",
+    "O3D_BYTES_PER_VOXEL",
+    "add_parser",
+    "run",
+    "bench_cycles",
+    "compare_carving",
+]
+
+#: Median cycle target, seconds.
+CYCLE_TARGET_S = 1.0
+#: Peak memory target, MB (1.5 GB = 1.5e9 bytes).
+MEMORY_TARGET_MB = 1500.0
+#: Open3D (``--open3d-voxel``) carving time over ours (``--carve-voxel``).
+CARVE_RATIO_TARGET = 10.0
+#: Memory of one voxel of an Open3D ``VoxelGrid`` (hash map node: index, colour, key;
+#: measured about 92 bytes with Open3D 0.20), bytes.
+O3D_BYTES_PER_VOXEL = 100
+
+_MB = 1e6
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _recipes_dir() -> Path:
+    return Path(__file__).resolve().parent.parent / "recipes"
+
+
+def _maxrss_mb() -> float | None:
+    """``ru_maxrss`` of this process, MB (None where ``resource`` is missing)."""
+    try:
+        import resource
+    except ImportError:  # pragma: no cover - not on Linux/macOS
+        return None
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return r / _MB if sys.platform == "darwin" else r * 1024 / _MB
+
+
+def _rss_mb() -> float | None:
+    """Current resident memory, MB (Linux ``/proc``; None elsewhere)."""
+    try:
+        with open("/proc/self/statm", encoding="ascii") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / _MB
+    except (OSError, ValueError, IndexError, AttributeError):
+        return None
+
+
+def _stats(values: Sequence[float]) -> dict[str, float]:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
+
+
+def _machine() -> dict[str, Any]:
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except (OSError, AttributeError):  # pragma: no cover
+        load = None
+    try:
+        usable = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover
+        usable = os.cpu_count()
+    return {
+        "cpu_count": os.cpu_count(),
+        "usable_cpus": usable,
+        "loadavg_1_5_15": load,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "numba_threads": os.environ.get("NUMBA_NUM_THREADS"),
+    }
+
+
+# --------------------------------------------------------------------------- capture
+
+_SIM_CHILD = """
+import json, sys
+from inspector.params import build_params
+from inspector_drivers.replay.folder import write_capture
+from inspector_drivers.sim.simulate import SimParams, simulate
+folder, name, table = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
+p = build_params(SimParams, table, "bench")
+cap = simulate(p, 0, name=name)
+write_capture(folder, cap.rig, cap.images, metadata=dict(cap.metadata), polarity=cap.polarity, overwrite=True)
+"""
+
+
+def simulate_capture(folder: Path, table: dict[str, Any]) -> Path:
+    """Simulate one capture (:class:`SimParams` ``table``) into ``folder``, in a child
+    process (its memory never counts here); written without ``truth/``."""
+    from inspector.errors import InspectorError
+
+    proc = subprocess.run(
+        [sys.executable, "-c", _SIM_CHILD, str(folder), Path(folder).name, json.dumps(table)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if proc.returncode != 0:
+        lines = [ln for ln in proc.stderr.strip().splitlines() if ln.strip()]
+        raise InspectorError(f"bench: simulation failed: {lines[-1] if lines else f'exit status {proc.returncode}'}")
+    return Path(folder)
+
+
+def _acquisition(folder: Path) -> Any:
+    """One replay :class:`Acquisition` of ``folder`` (truth dropped: production captures have none)."""
+    import dataclasses
+
+    from inspector.registry import Acquisition
+    from inspector_drivers.replay.folder import read_capture
+
+    def load() -> Any:
+        cap = read_capture(folder)
+        return dataclasses.replace(cap, truth=None) if cap.truth is not None else cap
+
+    return Acquisition(folder.name, load)
+
+
+# --------------------------------------------------------------------------- cycles
+
+
+def bench_cycles(recipe: Any, reference: Any, pm: Any, folder: Path, outdir: Path, runs: int,
+                 progress: Any = None) -> dict[str, Any]:
+    """Inspect ``folder`` ``1 + runs`` times with :func:`run_batch` (first run = warm-up).
+
+    Returns a dict: ``warmup_s``, ``warmup`` (the warm-up run's record), ``runs`` (per run: ``verdict``, ``error``, ``cycle_s``,
+    ``timings_s`` with ``outputs`` added), ``stages`` (name -> median/min/max over the
+    timed runs, ``load``, the stages, ``outputs``, ``total``: timings' total, and
+    ``cycle``), ``memory`` (MB).
+    """
+    from inspector.runner import run_batch
+
+    mem: dict[str, Any] = {"rss_before_mb": _rss_mb(), "maxrss_before_mb": _maxrss_mb()}
+    records: list[dict[str, Any]] = []
+    warmup_s, warmup = 0.0, None
+    for i in range(runs + 1):
+        it = run_batch(recipe, [_acquisition(folder)], pm, reference=reference, outdir=outdir / f"run{i:02d}")
+        t0 = time.perf_counter()
+        outcome = next(it)
+        cycle = time.perf_counter() - t0
+        for _ in it:  # pragma: no cover - one acquisition
+            pass
+        res = outcome.result
+        timings = dict(res.timings_s)
+        timings["outputs"] = max(cycle - timings.get("total", cycle), 0.0)
+        rec = {"verdict": res.verdict, "error": res.error, "cycle_s": cycle, "timings_s": timings}
+        if i == 0:
+            warmup_s, warmup = cycle, rec
+            mem["maxrss_after_warmup_mb"] = _maxrss_mb()
+        else:
+            records.append(rec)
+        if progress is not None:
+            label = "warm-up" if i == 0 else f"run {i}/{runs}"
+            progress(f"  {label}: {res.verdict} in {cycle:.3f} s" + (f" ({res.error})" if res.error else ""))
+        if res.verdict == "error":
+            break
+    mem["maxrss_after_mb"] = _maxrss_mb()
+    mem["rss_after_mb"] = _rss_mb()
+    if mem["maxrss_after_mb"] is not None:
+        mem["peak_mb"] = mem["maxrss_after_mb"]
+        mem["increase_mb"] = mem["maxrss_after_mb"] - mem["maxrss_before_mb"]
+        if mem.get("maxrss_after_warmup_mb") is not None:
+            mem["increase_timed_mb"] = mem["maxrss_after_mb"] - mem["maxrss_after_warmup_mb"]
+    stages: dict[str, dict[str, float]] = {}
+    if records:
+        names = [k for k in records[0]["timings_s"] if k not in ("total", "outputs")] + ["outputs", "total"]
+        for name in names:
+            vals = [r["timings_s"][name] for r in records if name in r["timings_s"]]
+            if vals:
+                stages[name] = _stats(vals)
+        stages["cycle"] = _stats([r["cycle_s"] for r in records])
+    return {"warmup_s": warmup_s, "warmup": warmup, "runs": records, "stages": stages, "memory": mem}
+
+
+# --------------------------------------------------------------------------- carving
+
+
+def _segment_params(recipe: Any) -> Any:
+    from inspector_plugins.segment import SegmentParams
+
+    for step in recipe.steps:
+        if isinstance(step.params, SegmentParams):
+            return step.params
+    return SegmentParams()
+
+
+def _masks(capture: Any, sp: Any) -> tuple[list[Any], list[Any], list[bool]]:
+    from inspector.errors import StageError
+    from inspector_plugins.segment import segment_image
+
+    polarity = capture.polarity if sp.polarity == "auto" else sp.polarity
+    use_bg = sp.background == "on" or (sp.background == "auto" and bool(capture.backgrounds))
+    cams, masks, border = [], [], []
+    for cam in capture.rig.cameras:
+        bg = capture.backgrounds.get(cam.name) if use_bg else None
+        if use_bg and bg is None:
+            raise StageError(f"camera {cam.name}: no background image (background/{cam.name}.png)")
+        sil = segment_image(capture.images[cam.name], bg, polarity, sp, cam.name)
+        cams.append(cam)
+        masks.append(sil.mask)
+        border.append(bool(sil.touches_border))
+    return cams, masks, border
+
+
+def compare_carving(capture: Any, recipe: Any, *, carve_voxel: float, open3d_voxel: float, carve_runs: int = 3,
+                    use_open3d: bool = True, open3d_max_gb: float = 4.0, progress: Any = None) -> dict[str, Any]:
+    """Our ``carve`` at ``carve_voxel`` against Open3D's dense carving at ``open3d_voxel``.
+
+    Returns a dict: ``ours`` (times, points), ``open3d`` (grid, times, kept voxels, or
+    ``refused``/``skipped`` with the reason), ``ratio`` (Open3D ``carve_silhouette`` time
+    over our median ``carve`` time, or None) and ``ratio_with_create`` (with
+    ``create_dense``).
+    """
+    import numpy as np
+
+    from inspector.kernels.carving import carve, default_bounds
+
+    out: dict[str, Any] = {"carve_voxel_mm": carve_voxel, "open3d_voxel_mm": open3d_voxel}
+    t0 = time.perf_counter()
+    cams, masks, border = _masks(capture, _segment_params(recipe))
+    out["segment_s"] = time.perf_counter() - t0
+    out["open_border_cameras"] = [c.name for c, b in zip(cams, border) if b]
+    bounds = np.asarray(default_bounds(cams, masks, open_border=border), float)
+    out["bounds_mm"] = bounds.tolist()
+
+    times, st, recon = [], {}, None
+    for _ in range(max(carve_runs, 1)):
+        t = time.perf_counter()
+        recon = carve(cams, masks, voxel_mm=carve_voxel, bounds=bounds, open_border=border, stats=st)
+        times.append(time.perf_counter() - t)
+    assert recon is not None
+    out["ours"] = {
+        "runs_s": times,
+        **{f"{k}_s": v for k, v in _stats(times).items()},
+        "n_points": int(len(recon.points)),
+        "n_finest_evaluated": st.get("n_finest_evaluated"),
+        "n_dense_finest": st.get("n_dense_finest"),
+        "time_breakdown_s": st.get("time_s"),
+    }
+    if progress is not None:
+        progress(f"  ours: carve at {carve_voxel} mm: median {out['ours']['median_s']:.3f} s over {len(times)} runs, "
+                 f"{len(recon.points)} surface points")
+    out["ratio"] = out["ratio_with_create"] = out["ratio_vs_cell_tests"] = None
+    if not use_open3d:
+        out["open3d"] = {"skipped": "--no-open3d"}
+        return out
+
+    ext = bounds[1] - bounds[0]
+    n = [max(1, math.ceil(float(e) / open3d_voxel - 1e-9)) for e in ext]
+    n_vox = n[0] * n[1] * n[2]
+    est_gb = n_vox * O3D_BYTES_PER_VOXEL / 1e9
+    o3: dict[str, Any] = {"grid": n, "n_voxels": n_vox, "estimated_gb": est_gb}
+    out["open3d"] = o3
+    if est_gb > open3d_max_gb:
+        o3["refused"] = (f"Open3D dense grid {n[0]}x{n[1]}x{n[2]} = {n_vox:,} voxels at {open3d_voxel} mm would need about "
+                         f"{est_gb:.1f} GB (> --open3d-max-gb {open3d_max_gb:g}); use a larger --open3d-voxel")
+        if progress is not None:
+            progress("  open3d: refused: " + o3["refused"])
+        return out
+    try:
+        import open3d as o3d
+    except ImportError as e:
+        o3["skipped"] = f"open3d cannot be imported ({e})"
+        return out
+    o3["version"] = o3d.__version__
+    notes = []
+    if any(c.has_distortion for c in cams):
+        notes.append("lens distortion ignored by Open3D (pinhole only)")
+    if any(abs(float(c.K[0, 1])) > 0 for c in cams):
+        notes.append("camera skew kept in the intrinsic matrix")
+    if border.count(True):
+        notes.append("silhouettes touching the image border: Open3D carves outside the image")
+    o3["notes"] = notes
+
+    t = time.perf_counter()
+    views = []
+    for cam, m in zip(cams, masks):
+        intr = o3d.camera.PinholeCameraIntrinsic(int(cam.width), int(cam.height), np.asarray(cam.K, float))
+        prm = o3d.camera.PinholeCameraParameters()
+        prm.intrinsic = intr
+        ext4 = np.eye(4)
+        ext4[:3, :3] = cam.R
+        ext4[:3, 3] = cam.t
+        prm.extrinsic = ext4
+        # carve_silhouette samples the mask with Image.FloatValueAt: float32 images only.
+        views.append((o3d.geometry.Image(np.ascontiguousarray(m, dtype=np.float32)), prm))
+    o3["prepare_s"] = time.perf_counter() - t
+    rss0 = _rss_mb()
+    t = time.perf_counter()
+    vg = o3d.geometry.VoxelGrid.create_dense(bounds[0].astype(float), np.zeros(3), float(open3d_voxel),
+                                             n[0] * open3d_voxel, n[1] * open3d_voxel, n[2] * open3d_voxel)
+    o3["create_dense_s"] = time.perf_counter() - t
+    rss1 = _rss_mb()
+    if rss0 is not None and rss1 is not None:
+        o3["grid_rss_mb"] = rss1 - rss0
+    per_cam = []
+    t = time.perf_counter()
+    for img, prm in views:
+        tc = time.perf_counter()
+        vg.carve_silhouette(img, prm, keep_voxels_outside_image=False)
+        per_cam.append(time.perf_counter() - tc)
+    o3["carve_silhouette_s"] = time.perf_counter() - t
+    o3["per_camera_s"] = per_cam
+    o3["total_s"] = o3["create_dense_s"] + o3["carve_silhouette_s"]
+    # check_if_included maps a query to its voxel; len(get_voxels()) would build a list.
+    kept = np.asarray(vg.check_if_included(o3d.utility.Vector3dVector(np.asarray(recon.points, float))), bool) \
+        if len(recon.points) else np.zeros(0, bool)
+    o3["n_voxels_kept"] = int(len(vg.get_voxels())) if n_vox <= 20_000_000 else None
+    o3["our_points_in_kept_voxels"] = float(kept.mean()) if kept.size else None
+    del vg, views
+    ours = out["ours"]["median_s"]
+    out["ratio"] = o3["carve_silhouette_s"] / ours if ours > 0 else None
+    out["ratio_with_create"] = o3["total_s"] / ours if ours > 0 else None
+    # Informative only: against our cell classification alone (no surface points, no mesh),
+    # the part of carve() doing what carve_silhouette does (last run's breakdown).
+    cells = (st.get("time_s") or {}).get("carve")
+    out["ratio_vs_cell_tests"] = o3["carve_silhouette_s"] / cells if cells else None
+    if progress is not None:
+        progress(f"  open3d {o3['version']}: {n[0]}x{n[1]}x{n[2]} grid at {open3d_voxel} mm: create_dense "
+                 f"{o3['create_dense_s']:.2f} s, carve_silhouette x{len(per_cam)} {o3['carve_silhouette_s']:.2f} s")
+    return out
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _targets(cycles: dict[str, Any], carving: dict[str, Any] | None) -> dict[str, Any]:
+    t: dict[str, Any] = {}
+    cyc = cycles["stages"].get("cycle")
+    t["cycle"] = {"target": f"median cycle <= {CYCLE_TARGET_S} s", "value_s": cyc["median"] if cyc else None,
+                  "met": (cyc["median"] <= CYCLE_TARGET_S) if cyc else None}
+    peak = cycles["memory"].get("peak_mb")
+    t["memory"] = {"target": f"peak memory <= {MEMORY_TARGET_MB / 1000:g} GB", "value_mb": peak,
+                   "met": (peak <= MEMORY_TARGET_MB) if peak is not None else None}
+    ratio = carving.get("ratio") if carving else None
+    t["carve_ratio"] = {"target": f"carve ratio >= {CARVE_RATIO_TARGET:g}", "value": ratio,
+                        "met": (ratio >= CARVE_RATIO_TARGET) if ratio is not None else None}
+    return t
+
+
+def _word(met: bool | None) -> str:
+    return "MET" if met else ("NOT MEASURED" if met is None else "NOT MET")
+
+
+def _print_report(doc: dict[str, Any]) -> None:
+    cfg, cyc = doc["config"], doc["cycles"]
+    cap = cfg["capture"]
+    m = doc["machine"]
+    print()
+    print(f"inspector bench: recipe {cfg['recipe']} ({cfg['recipe_name']}), reference {cfg['reference']}")
+    print(f"  capture {cap['name']}: {cap['cameras']} cameras, {cap['width']}x{cap['height']} px ({cap['source']})")
+    print(f"  machine: {m['usable_cpus']} usable CPUs, load average {m['loadavg_1_5_15']} at start "
+          "(timings depend on other jobs on this machine)")
+    print(f"  warm-up run {cyc['warmup_s']:.3f} s (left out); {len(cyc['runs'])} timed run(s)")
+    if cyc["stages"]:
+        print()
+        print(f"  {'stage':<18}{'median s':>10}{'min s':>10}{'max s':>10}")
+        for name, s in cyc["stages"].items():
+            if name in ("total", "cycle"):
+                continue
+            print(f"  {name:<18}{s['median']:>10.3f}{s['min']:>10.3f}{s['max']:>10.3f}")
+        for name, label in (("total", "load+stages"), ("cycle", "cycle (all)")):
+            s = cyc["stages"].get(name)
+            if s:
+                print(f"  {label:<18}{s['median']:>10.3f}{s['min']:>10.3f}{s['max']:>10.3f}")
+    mem = cyc["memory"]
+    if mem.get("peak_mb") is not None:
+        print(f"\n  memory: peak RSS {mem['peak_mb']:.0f} MB (ru_maxrss); before the runs {mem['maxrss_before_mb']:.0f} MB, "
+              f"+{mem['increase_mb']:.0f} MB over warm-up and runs (+{mem.get('increase_timed_mb', 0.0):.0f} MB over the timed runs)")
+    c = doc.get("carving")
+    if c:
+        o = c["ours"]
+        print(f"\n  carving on the same masks, box {' x '.join(f'{b - a:.1f}' for a, b in zip(*c['bounds_mm']))} mm:")
+        print(f"    ours   carve() at {c['carve_voxel_mm']} mm: median {o['median_s']:.3f} s (min {o['min_s']:.3f}, "
+              f"max {o['max_s']:.3f}), {o['n_points']} surface points, {o['n_finest_evaluated']} finest cells tested")
+        br = o.get("time_breakdown_s") or {}
+        if br:
+            print(f"           last run: cell tests {br.get('carve', 0):.3f} s, surface points {br.get('points', 0):.3f} s, "
+                  f"display mesh {br.get('mesh', 0):.3f} s")
+        o3 = c["open3d"]
+        if "refused" in o3 or "skipped" in o3:
+            print(f"    open3d: {o3.get('refused') or 'skipped: ' + o3['skipped']}")
+        else:
+            print(f"    open3d VoxelGrid at {c['open3d_voxel_mm']} mm: {'x'.join(map(str, o3['grid']))} = {o3['n_voxels']:,} voxels"
+                  f" (~{o3.get('grid_rss_mb', float('nan')):.0f} MB); create_dense {o3['create_dense_s']:.2f} s, "
+                  f"carve_silhouette x{len(o3['per_camera_s'])} {o3['carve_silhouette_s']:.2f} s")
+            kept = o3.get("n_voxels_kept")
+            inside = o3.get("our_points_in_kept_voxels")
+            print(f"    open3d kept {kept if kept is not None else '?'} voxels; our surface points in kept voxels: "
+                  f"{'n/a' if inside is None else f'{100 * inside:.2f} %'}")
+            for note in o3.get("notes", []):
+                print(f"    note: {note}")
+            print(f"    ratio (carve_silhouette / ours): {c['ratio']:.1f}x; with create_dense: {c['ratio_with_create']:.1f}x"
+                  + (f"; against our cell tests only: {c['ratio_vs_cell_tests']:.1f}x (informative)" if c.get("ratio_vs_cell_tests") else ""))
+    print("\n  targets:")
+    t = doc["targets"]
+    cv = t["cycle"]["value_s"]
+    print(f"    cycle <= {CYCLE_TARGET_S:g} s (median):  {_word(t['cycle']['met'])}"
+          + (f" ({cv:.3f} s)" if cv is not None else ""))
+    mv = t["memory"]["value_mb"]
+    print(f"    peak memory <= {MEMORY_TARGET_MB / 1000:g} GB:   {_word(t['memory']['met'])}"
+          + (f" ({mv / 1000:.2f} GB)" if mv is not None else ""))
+    rv = t["carve_ratio"]["value"]
+    print(f"    carve ratio >= {CARVE_RATIO_TARGET:g}x:     {_word(t['carve_ratio']['met'])}"
+          + (f" ({rv:.1f}x: Open3D {c['open3d_voxel_mm']} mm vs ours {c['carve_voxel_mm']} mm)" if rv is not None and c else ""))
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def add_parser(subparsers: Any) -> None:
+    """Add the ``bench`` sub-command to ``subparsers`` (from ``add_subparsers``)."""
+    b = subparsers.add_parser(
+        "bench",
+        help="measure the cycle time, peak memory and carving speed against Open3D (the performance targets)",
+        description="Simulate (or read) one capture, inspect it 1 + RUNS times with the batch runner in this process "
+        "(first run left out), report per-stage medians and peak memory, then compare our carving with Open3D's "
+        "VoxelGrid.carve_silhouette on the same masks. Exit 0 when every measured target is met, 1 otherwise.",
+    )
+    b.add_argument("--recipe", default=str(_recipes_dir() / "default.toml"), metavar="TOML",
+                   help="recipe to run (default recipes/default.toml)")
+    b.add_argument("--reference", metavar="MESH", help="reference mesh or builtin:NAME (default: the recipe's, else builtin:PART)")
+    b.add_argument("--part", default="cube30", help="simulated part, built-in name (default cube30)")
+    b.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    b.add_argument("--cameras", type=int, default=16, help="simulated cameras (default 16)")
+    b.add_argument("--size", type=int, default=1024, metavar="PX", help="simulated image width and height, px (default 1024)")
+    b.add_argument("--mm-per-px", type=float, default=0.1, help="simulated pixel footprint at the rig centre, mm (default 0.1)")
+    b.add_argument("--capture", metavar="DIR", help="use this capture folder instead of simulating one")
+    b.add_argument("--runs", type=int, default=5, help="timed runs after the warm-up (default 5)")
+    b.add_argument("--json", metavar="OUT.json", help="write every figure to this JSON file")
+    b.add_argument("--no-open3d", action="store_true", help="skip the Open3D carving comparison")
+    b.add_argument("--open3d-voxel", type=float, default=0.25, metavar="MM", help="Open3D voxel, mm (default 0.25)")
+    b.add_argument("--open3d-max-gb", type=float, default=4.0, metavar="GB",
+                   help="refuse an Open3D dense grid needing more memory than this (default 4)")
+    b.add_argument("--carve-voxel", type=float, default=0.1, metavar="MM", help="our carving voxel, mm (default 0.1)")
+    b.add_argument("--carve-runs", type=int, default=3, help="runs of our carving; the median is compared (default 3)")
+    b.add_argument("--keep", metavar="DIR", help="write the capture and the outputs here instead of a temporary folder")
+    b.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+
+
+def _default_reference(recipe_path: str, part: str) -> str | None:
+    """``builtin:PART`` when the recipe names no reference (None: keep the recipe's)."""
+    import tomllib
+
+    try:
+        with open(recipe_path, "rb") as f:
+            head = tomllib.load(f).get("recipe", {})
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return None  # load_recipe reports the problem
+    return None if isinstance(head, dict) and head.get("reference") else f"builtin:{part}"
+
+
+def _check(args: argparse.Namespace) -> None:
+    from inspector.errors import RecipeError
+
+    if args.runs < 1:
+        raise RecipeError("bench --runs: expected a number >= 1")
+    if args.carve_runs < 1:
+        raise RecipeError("bench --carve-runs: expected a number >= 1")
+    for flag, v in (("--open3d-voxel", args.open3d_voxel), ("--carve-voxel", args.carve_voxel),
+                    ("--mm-per-px", args.mm_per_px), ("--open3d-max-gb", args.open3d_max_gb)):
+        if not (v > 0 and math.isfinite(v)):
+            raise RecipeError(f"bench {flag}: expected a positive number")
+    if args.cameras < 3:
+        raise RecipeError("bench --cameras: expected a number >= 3")
+    if args.size < 16:
+        raise RecipeError("bench --size: expected a number >= 16")
+    if args.capture is not None and not Path(args.capture).is_dir():
+        raise RecipeError(f"bench --capture {args.capture}: not a folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``inspector bench``; see the module docstring. Exit 0 targets met, 1 not met, 3 inspection error."""
+    from inspector.cli import _load
+
+    _check(args)
+    machine = _machine()
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
+    pm, recipe, ref = _load(args.recipe, args.reference or _default_reference(args.recipe, args.part))
+
+    with tempfile.TemporaryDirectory(prefix="inspector-bench-") as tmp:
+        work = Path(args.keep) if args.keep else Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        if args.capture:
+            folder = Path(args.capture)
+            source = str(folder.resolve())
+        else:
+            table = {"part": args.part, "seed": args.seed, "cameras": args.cameras, "width": args.size,
+                     "height": args.size, "mm_per_px": args.mm_per_px}
+            say(f"Simulating {args.part}: {args.cameras} cameras, {args.size}x{args.size} px at {args.mm_per_px} mm/px ...")
+            folder = simulate_capture(work / "captures" / f"{args.part}-s{args.seed:04d}", table)
+            source = f"simulated: part {args.part}, seed {args.seed}, {args.mm_per_px} mm/px"
+        from inspector.errors import InspectorError
+        from inspector_drivers.replay.folder import RIG_FILE, read_rig
+
+        try:
+            cams = list(read_rig(folder / RIG_FILE).cameras)
+        except InspectorError:
+            cams = []  # the inspection reports the problem
+        cap_info = {"name": folder.name, "source": source, "cameras": len(cams),
+                    "width": cams[0].width if cams else None, "height": cams[0].height if cams else None}
+        say(f"Inspecting {folder.name} {1 + args.runs} times (first = warm-up) with {recipe.name} ...")
+        cycles = bench_cycles(recipe, ref, pm, folder, work / "results", args.runs, progress=say)
+        failed = [r for r in [cycles["warmup"], *cycles["runs"]] if r["verdict"] == "error"]
+        if failed:
+            print(f"inspector: error: bench: the inspection failed: {failed[0]['error']}", file=sys.stderr)
+            return 3
+        say("Carving comparison on the same capture ...")
+        from inspector_drivers.replay.folder import read_capture
+
+        carving = compare_carving(read_capture(folder), recipe, carve_voxel=args.carve_voxel, open3d_voxel=args.open3d_voxel,
+                                  carve_runs=args.carve_runs, use_open3d=not args.no_open3d,
+                                  open3d_max_gb=args.open3d_max_gb, progress=say)
+    doc = {
+        "config": {
+            "recipe": str(args.recipe), "recipe_name": recipe.name, "reference": recipe.reference, "capture": cap_info,
+            "runs": args.runs, "warmup_runs": 1, "carve_runs": args.carve_runs, "carve_voxel_mm": args.carve_voxel,
+            "open3d_voxel_mm": args.open3d_voxel, "open3d": not args.no_open3d,
+        },
+        "machine": machine,
+        "cycles": cycles,
+        "carving": carving,
+    }
+    doc["targets"] = _targets(cycles, carving)
+    verdicts = [r["verdict"] for r in cycles["runs"]]
+    doc["verdicts"] = verdicts
+    if not args.quiet:
+        _print_report(doc)
+    if args.json:
+        p = Path(args.json)
+        if p.parent != Path(""):
+            p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n", encoding="utf-8")
+        say(f"\n  figures written to {p}")
+    measured = [t["met"] for t in doc["targets"].values() if t["met"] is not None]
+    return 0 if all(measured) else 1
+
+
+def _json_default(o: Any) -> Any:
+    try:
+        import numpy as np
+
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        if isinstance(o, np.generic):
+            return o.item()
+    except ImportError:  # pragma: no cover
+        pass
+    return repr(o)

@@ -1,0 +1,114 @@
+"""``inspector bench``: a pytest-benchmark of one inspection, and the command on tiny settings.
+
+pytest runs with ``--benchmark-disable`` here, so a benchmark body runs once: it asserts
+correctness, never timing. ``pytest --benchmark-enable tests/core/test_bench.py`` times it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from inspector import bench
+
+RECIPES = Path(__file__).resolve().parents[2] / "recipes"
+from inspector.errors import RecipeError
+
+
+def _args(*argv: str) -> argparse.Namespace:
+    ap = argparse.ArgumentParser(prog="inspector")
+    sub = ap.add_subparsers(dest="command", required=True)
+    bench.add_parser(sub)
+    return ap.parse_args(["bench", *argv])
+
+
+@pytest.fixture(scope="module")
+def default_recipe():
+    from inspector.cli import _load
+
+    return _load(str(RECIPES / "default.toml"), "builtin:cube30")
+
+
+def test_benchmark_one_inspection(benchmark, default_recipe, small_capture, tmp_path):
+    """One batch inspection (read + every stage + outputs) of 8 cameras, 256x256, 0.4 mm/px."""
+    from inspector.runner import run_batch
+
+    pm, recipe, ref = default_recipe
+    acq = bench._acquisition(small_capture)
+    runs = iter(range(1_000_000))
+
+    def one():
+        return next(run_batch(recipe, [acq], pm, reference=ref, outdir=tmp_path / f"r{next(runs)}"))
+
+    outcome = benchmark(one)
+    res = outcome.result
+    assert res.error is None and res.verdict in ("pass", "fail")
+    for stage in ("load", *(s.name for s in recipe.steps), "total"):
+        assert res.timings_s[stage] >= 0.0
+    assert "truth" not in res.stats  # the benchmark's acquisition drops truth/, as in production
+    assert res.stats["reconstruction_points"] > 1000
+    assert res.bcps is not None and len(res.bcps.points) > 100
+    # The BCPS points lie on the reference surface after alignment (30 mm cube, 0.4 mm pixels).
+    assert abs(res.stats["deviation_mm"]["mean"]) < 0.1
+    folder = next((tmp_path).glob("r*")) / small_capture.name
+    doc = json.loads((folder / "result.json").read_text())
+    assert doc["verdict"] == res.verdict
+    assert (folder / "bcps_points.ply").stat().st_size > 0
+
+
+def test_run_tiny(tmp_path, capsys):
+    """The whole command, simulating a small capture; every figure in the JSON."""
+    out = tmp_path / "bench.json"
+    rc = bench.run(_args("--runs", "1", "--cameras", "8", "--size", "256", "--mm-per-px", "0.4", "--carve-voxel", "0.5",
+                         "--carve-runs", "1", "--open3d-voxel", "2.0", "--json", str(out)))
+    assert rc in (0, 1)  # targets are for the full capture, not this one
+    doc = json.loads(out.read_text())
+    assert set(doc) >= {"config", "machine", "cycles", "carving", "targets", "verdicts"}
+    assert doc["verdicts"] and all(v in ("pass", "fail") for v in doc["verdicts"])
+    cyc = doc["cycles"]
+    assert len(cyc["runs"]) == 1 and cyc["warmup_s"] > 0
+    for name in ("load", "segment", "carve", "align", "bcps", "evaluate", "outputs", "total", "cycle"):
+        assert set(cyc["stages"][name]) == {"median", "min", "max"}
+    assert cyc["stages"]["cycle"]["median"] >= cyc["stages"]["total"]["median"]
+    mem = cyc["memory"]
+    assert mem["peak_mb"] > 0 and mem["increase_mb"] >= 0
+    c = doc["carving"]
+    assert c["ours"]["n_points"] > 0 and c["ours"]["median_s"] > 0
+    o3 = c["open3d"]
+    assert o3["grid"] and o3["n_voxels"] > 0 and o3["carve_silhouette_s"] >= 0
+    assert len(o3["per_camera_s"]) == 8
+    assert o3["our_points_in_kept_voxels"] > 0.99  # both carvers use the cameras alike
+    assert c["ratio"] is not None and c["ratio"] > 0
+    for key in ("cycle", "memory", "carve_ratio"):
+        assert isinstance(doc["targets"][key]["met"], bool)
+    assert rc == (0 if all(t["met"] for t in doc["targets"].values()) else 1)
+    text = capsys.readouterr().out
+    assert "targets:" in text and "carve ratio" in text and ("NOT MET" in text or "MET" in text)
+
+
+def test_open3d_grid_too_large_is_refused(default_recipe, small_capture):
+    from inspector_drivers.replay.folder import read_capture
+
+    _, recipe, _ = default_recipe
+    c = bench.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=0.25, carve_runs=1,
+                              open3d_max_gb=0.001)
+    assert "refused" in c["open3d"] and "--open3d-voxel" in c["open3d"]["refused"]
+    assert c["ratio"] is None and c["ours"]["n_points"] > 0
+    assert bench._targets({"stages": {}, "memory": {}}, c)["carve_ratio"]["met"] is None
+
+
+@pytest.mark.parametrize("argv", [("--runs", "0"), ("--carve-voxel", "0"), ("--open3d-voxel", "-1"), ("--capture", "/nonexistent/x")])
+def test_invalid_options(argv):
+    with pytest.raises(RecipeError):
+        bench.run(_args(*argv))
+
+
+def test_import_is_light():
+    code = "import sys, inspector.bench; print(sorted(m for m in ('numpy', 'open3d', 'numba', 'scipy', 'cv2') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]"
