@@ -108,6 +108,12 @@ def undistort_pixels(uv: np.ndarray, K: np.ndarray, dist: np.ndarray) -> np.ndar
         return np.stack([x, y], axis=1)
     import cv2
 
+    # OpenCV's model has no skew: remove it here, so K[0, 1] means the same in both ways.
+    skew = K[0, 1]
+    if skew != 0.0:
+        uv = np.stack([uv[:, 0] - skew * (uv[:, 1] - K[1, 2]) / K[1, 1], uv[:, 1]], axis=1)
+        K = K.copy()
+        K[0, 1] = 0.0
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
     pts = uv.reshape(-1, 1, 2)
     if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4
