@@ -24,9 +24,10 @@ from inspector.registry import StageRegistry, StageSpec
 @dataclass(frozen=True)
 class RayParams:
     step_mm: float = param(0.25, "coarse sampling step along each contour ray, mm", min=0.01, max=5.0)
-    refine_levels: int = param(2, "refinement levels around the coarse minimum (each 10x finer)", min=0, max=5)
+    refine_levels: int = param(3, "refinement levels around the coarse minimum (each 5x finer: 2 um after 3)", min=0, max=6)
     refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
     refine_robust_mm: float = param(0.1, "robust scale of the re-alignment (points beyond are down-weighted), mm", min=0.001)
+    refine_stride: int = param(3, "the selection that feeds the re-alignment uses every n-th contour point", min=1)
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
     accept_px: float = param(1.0, "largest hull violation of a selected point, px (beyond: the ray has no point)", min=0.0, max=5.0)
     violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0)
@@ -75,24 +76,27 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
     recon = ctx.need("reconstruction", "bcps")
     out = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
     ranges = cache.setdefault("ranges", {})
+    stride = cache.get("stride", 1)
     for i, (cam, sil) in enumerate(zip(rig.cameras, sils)):
         if len(sil.contour) == 0:
             continue
-        origin, dirs = cam.rays(sil.contour)
         if i not in ranges:
+            origin, dirs = cam.rays(sil.contour)
             # Only where the ray passes near the reconstruction (the hull is conservative).
             # A pose update can move a grazing ray's optimum far along it: every pass
             # searches the whole range.
-            ranges[i] = bk.ray_ranges(cam, sil.contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm))
+            ranges[i] = (origin, dirs, bk.ray_ranges(cam, sil.contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm)))
+        origin, dirs, (r0, r1) = ranges[i]
+        sub = slice(None, None, stride)
         pts, dev, seg, ok = bk.select_on_rays(
-            origin, dirs, views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm,
-            refine_levels=p.refine_levels, tolerance_px=p.tolerance_px, accept_px=p.accept_px,
-            violation_weight=p.violation_weight, t_range=ranges[i],
+            origin, dirs[sub], views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm,
+            refine_levels=cache.get("refine_levels", p.refine_levels), tolerance_px=p.tolerance_px, accept_px=p.accept_px,
+            violation_weight=p.violation_weight, t_range=(r0[sub], r1[sub]),
         )
         out["points"].append(pts[ok])
         out["deviation"].append(dev[ok])
         out["camera"].append(np.full(int(ok.sum()), i, np.int32))
-        out["pixel"].append(sil.contour[ok])
+        out["pixel"].append(sil.contour[sub][ok])
         out["segment"].append(seg[ok])
     return _assemble(out, "ray")
 
@@ -139,7 +143,16 @@ def _run(select, robust_attr: str):
         alignment = ctx.need("alignment", "bcps")
         ref = ctx.need("reference", "bcps")
         cache: dict = {"backend": getattr(p, "backend", "numba")}
+        if p.refine_pose and getattr(p, "refine_levels", 0) > 1:
+            # The first selection only feeds the pose fit, which averages thousands of
+            # points: a third of the rays and one refinement level less (25 um steps)
+            # are enough there.
+            cache["refine_levels"] = p.refine_levels - 1
+        if p.refine_pose:
+            cache["stride"] = getattr(p, "refine_stride", 1)
         sel = select(ctx, alignment.pose, p, cache)
+        cache.pop("refine_levels", None)
+        cache.pop("stride", None)
         if p.refine_pose:
             refined = refine_on_points(sel.points, ref.vertices, ref.faces, alignment.pose, robust_mm=getattr(p, robust_attr))
             alignment = type(alignment)(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")

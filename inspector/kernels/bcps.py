@@ -201,7 +201,7 @@ def select_on_rays(
     *,
     step_mm: float = 0.25,
     refine_levels: int = 2,
-    refine_samples: int = 21,
+    refine_samples: int = 11,
     tolerance_px: float = 0.05,
     accept_px: float = 1.0,
     violation_weight: float = 3.0,
