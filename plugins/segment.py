@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Literal
 
@@ -110,12 +111,19 @@ def run_segment(ctx: InspectionContext, p: SegmentParams) -> InspectionContext:
     cap = ctx.capture
     polarity = cap.polarity if p.polarity == "auto" else p.polarity
     use_bg = p.background == "on" or (p.background == "auto" and bool(cap.backgrounds))
-    sils = []
     for cam in cap.rig:
-        bg = cap.backgrounds.get(cam.name) if use_bg else None
-        if use_bg and bg is None:
+        if use_bg and cap.backgrounds.get(cam.name) is None:
             raise StageError(f"camera {cam.name}: no background image (background/{cam.name}.png)")
-        sils.append(segment_image(cap.images[cam.name], bg, polarity, p, cam.name))
+
+    def one(cam):
+        bg = cap.backgrounds.get(cam.name) if use_bg else None
+        return segment_image(cap.images[cam.name], bg, polarity, p, cam.name)
+
+    # OpenCV and most numpy kernels release the GIL: cameras in parallel threads.
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=min(len(cap.rig), os.cpu_count() or 1) or 1) as pool:
+        sils = list(pool.map(one, cap.rig.cameras))
     return ctx.evolve(silhouettes=tuple(sils))
 
 
