@@ -10,6 +10,7 @@ $(STAMP): requirements.lock pyproject.toml scripts/sysdeps.sh
 	@bash scripts/sysdeps.sh
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --disable-pip-version-check -r requirements.lock
+	@bash scripts/install-acquisition-deps.sh --python $(PY)
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
 	@touch $(STAMP)
 

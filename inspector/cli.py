@@ -295,6 +295,9 @@ def build_parser() -> argparse.ArgumentParser:
     from inspector import bench
 
     bench.add_parser(sub)
+    from inspector_drivers import capture_cmd
+
+    capture_cmd.add_parser(sub)
 
     pl = sub.add_parser("plugins", help="list stages and drivers with their parameters")
     pl.add_argument("--json", action="store_true", help="machine-readable output")
@@ -319,6 +322,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _simulate(args)
         if args.command == "plugins":
             return _plugins(args)
+        if args.command == "capture":
+            from inspector_drivers import capture_cmd
+
+            return capture_cmd.run(args)
         if args.command == "bench":
             from inspector import bench
 
@@ -343,6 +350,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InspectorError as e:
         _err(str(e))
         return EXIT_ERROR
+    except BrokenPipeError:  # output piped to a pager or head that closed early
+        return EXIT_OK
     except KeyboardInterrupt:
         _err("interrupted; results written so far are kept")
         return 130

@@ -55,7 +55,9 @@ def trigger_latency(
     dict
         ``cameras``, ``triggers``, ``ok``, ``failed``, ``median_ms``, ``p10_ms``,
         ``p90_ms``, ``min_ms``, ``max_ms``, ``mean_ms``, ``wall_s``, ``first_error``,
-        ``trigger_mode``, and ``latencies_ms`` (every timed trigger, in order).
+        ``trigger_mode``, ``camera_median_ms`` / ``overhead_median_ms`` (aravis: the
+        cameras' and the driver's share of the median) and ``latencies_ms`` (every timed
+        trigger, in order).
     """
     own = False
     if not hasattr(driver, "session"):
@@ -66,6 +68,7 @@ def trigger_latency(
         driver = open_driver(params)
         own = True
     lat: list[float] = []
+    cam_share: list[float] = []
     failed = 0
     first_error = ""
     t_start = time.perf_counter()
@@ -83,6 +86,8 @@ def trigger_latency(
                 continue
             if i >= warmup:
                 lat.append(float(meta["latency_ms"]))
+                if "last_frame_start_ms" in meta:
+                    cam_share.append(float(meta["last_frame_start_ms"]))
         mode = getattr(session, "trigger_mode", "")
         n = len(driver.rig)
     finally:
@@ -102,5 +107,9 @@ def trigger_latency(
         "mean_ms": statistics.fmean(lat) if lat else float("nan"),
         "wall_s": time.perf_counter() - t_start,
         "first_error": first_error,
+        # aravis only: when the last camera's frame began to arrive (the cameras' share), and
+        # the rest (transfer of the last frame, checks, copies: this driver's share)
+        "camera_median_ms": statistics.median(cam_share) if cam_share else None,
+        "overhead_median_ms": statistics.median([a - b for a, b in zip(lat, cam_share)]) if cam_share and len(cam_share) == len(lat) else None,
         "latencies_ms": lat,
     }

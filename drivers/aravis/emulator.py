@@ -87,6 +87,19 @@ def write_rig(path: str | os.PathLike[str], n: int, width: int = 512, height: in
     return rig
 
 
+_SET_USER_NAME = """
+import sys, gi
+gi.require_version("Aravis", "0.8")
+from gi.repository import Aravis
+camera = Aravis.Camera.new(sys.argv[1])
+device = camera.get_device()
+raw = sys.argv[2].encode("latin-1").ljust(16, b"\\0")
+for k in range(4):
+    device.write_register(0xE8 + 4 * k, int.from_bytes(raw[4 * k : 4 * k + 4], "big"))
+del device, camera  # releases control of the camera now, not at its 3 s heartbeat timeout
+"""
+
+
 def _run(*args: str) -> None:
     r = subprocess.run(list(args), capture_output=True, text=True)
     if r.returncode != 0:
@@ -240,6 +253,20 @@ class EmulatedRig:
                     todo.discard(i)
             if todo and time.monotonic() > deadline:
                 raise TimeoutError(f"fake cameras {sorted(todo)} do not answer discovery")
+
+    def set_user_name(self, i: int, name: str) -> None:
+        """Give camera ``i`` a user-defined name (GigE bootstrap register 0xE8, 16 bytes)."""
+        raw = name.encode("latin-1")
+        if len(raw) > 15:
+            raise ValueError("a GigE Vision user-defined name has at most 15 characters")
+        r = subprocess.run(
+            self.exec_prefix() + [sys.executable, "-c", _SET_USER_NAME, self.addresses[i], name],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        if r.returncode != 0:
+            raise RuntimeError(f"cannot set the user name of camera {i}: {r.stderr.strip()[-500:]}")
 
     def exec_prefix(self) -> list[str]:
         return ["ip", "netns", "exec", self.ns]

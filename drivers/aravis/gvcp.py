@@ -60,7 +60,13 @@ def _parse(address: str, data: bytes) -> DeviceAnswer | None:
     )
 
 
-def discover(address: str, timeout: float = 0.2, attempts: int = 2, sock: socket.socket | None = None) -> DeviceAnswer | None:
+def discover(
+    address: str,
+    timeout: float = 0.2,
+    attempts: int = 2,
+    sock: socket.socket | None = None,
+    port: int = GVCP_PORT,
+) -> DeviceAnswer | None:
     """Ask the device at ``address`` who it is; None when nothing answers within ``timeout``.
 
     ``sock`` lets a caller use a socket created elsewhere (e.g. inside a network namespace).
@@ -73,7 +79,7 @@ def discover(address: str, timeout: float = 0.2, attempts: int = 2, sock: socket
         per_try = max(timeout / max(attempts, 1), 0.001)
         if own:
             try:  # a connected socket hears ICMP "port unreachable" at once
-                s.connect((address, GVCP_PORT))
+                s.connect((address, port))
             except OSError:
                 return None
         for _ in range(max(attempts, 1)):
@@ -81,7 +87,7 @@ def discover(address: str, timeout: float = 0.2, attempts: int = 2, sock: socket
                 if own:
                     s.send(packet)
                 else:
-                    s.sendto(packet, (address, GVCP_PORT))
+                    s.sendto(packet, (address, port))
             except OSError:
                 return None
             deadline = time.monotonic() + per_try

@@ -9,7 +9,8 @@ recover, while this process stays up. Requests:
     Open the driver (params as in a recipe). Answer: ``ok``, ``open_s``, ``trigger_mode``.
 ``{"cmd": "trigger", "pattern": true}``
     Load the next acquisition. Answer: ``ok``, ``name``, ``error``, ``elapsed_s``, ``meta``
-    (capture metadata), ``frames`` (per camera: ``frame_id``, ``shape``, ``dtype``, ``sum``,
+    (capture metadata), ``frames`` (per camera: ``frame_id``, ``serial``, ``address``,
+    ``shape``, ``dtype``, ``sum``,
     and with ``pattern`` whether the image is exactly the fake camera's frame).
 ``{"cmd": "latency", "triggers": 50, "warmup": 3}``
     :func:`~inspector_drivers.aravis.bench.trigger_latency` on the open driver.
@@ -50,7 +51,14 @@ def _frame_report(cap: Any, pattern: bool) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for cam, img in cap.images.items():
         info = dict(cap.metadata.get("frames", {}).get(cam, {}))
-        rep = {"frame_id": info.get("frame_id"), "shape": list(img.shape), "dtype": str(img.dtype), "sum": int(img.sum())}
+        rep = {
+            "frame_id": info.get("frame_id"),
+            "serial": info.get("serial"),
+            "address": info.get("address"),
+            "shape": list(img.shape),
+            "dtype": str(img.dtype),
+            "sum": int(img.sum()),
+        }
         if pattern:
             from inspector_drivers.aravis.emulator import fake_pattern
 

@@ -169,6 +169,11 @@ class AravisSession:
             cam.serial = d["serial"]
             cam.address = d["address"] if d["protocol"] == "GigEVision" else ""
             cam.key = cam.address or d["id"]
+        seen: dict[str, str] = {}
+        for cam in self.cams:
+            if cam.key in seen:
+                raise InputError(f"{DRIVER}: cameras {seen[cam.key]} and {cam.name} are the same device ({cam.key})")
+            seen[cam.key] = cam.name
 
     # -- one camera ---------------------------------------------------------------------------
     def _open(self, cam: _Cam) -> None:
@@ -373,13 +378,13 @@ class AravisSession:
     def _fetch(self, cam: _Cam, deadline: float, t_ns: int) -> Frame:
         Aravis, p = self.Aravis, self.params
         stale = skipped = 0
-        what = {"software": "the software trigger", "hardware": "waiting for the hardware trigger"}.get(cam.mode, "the trigger (free-run)")
+        what = {"software": "of the software trigger", "hardware": "while waiting for the hardware trigger"}.get(cam.mode, "of the trigger (free-run)")
         while True:
             left_us = int((deadline - time.perf_counter()) * 1e6)
             buf = cam.stream.timeout_pop_buffer(left_us) if left_us > 0 else cam.stream.try_pop_buffer()
             if buf is None:
                 extra = f" ({stale} stale frame{'s' if stale != 1 else ''} dropped)" if stale else ""
-                raise _Timeout(f"no frame within {p.timeout_s:g} s of {what}{extra}")
+                raise _Timeout(f"no frame within {p.timeout_s:g} s {what}{extra}")
             try:
                 fid = int(buf.get_frame_id())
                 sys_ts = int(buf.get_system_timestamp())

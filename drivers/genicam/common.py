@@ -76,17 +76,27 @@ class DeviceMatch:
     value: str
 
     def describe(self) -> str:
-        return f"{'serial' if self.by == 'serial' else 'user id'} {self.value!r}"
+        return f"{ {'serial': 'serial', 'user_id': 'user id'}.get(self.by, self.by)} {self.value!r}"
 
 
-def camera_keys(rig: Rig, serials: Mapping[str, Any] | None, user_ids: Mapping[str, Any] | None, driver: str) -> list[DeviceMatch]:
-    """One :class:`DeviceMatch` per rig camera, in rig order (InputError naming the key)."""
+def camera_keys(
+    rig: Rig,
+    serials: Mapping[str, Any] | None,
+    user_ids: Mapping[str, Any] | None,
+    driver: str,
+    addresses: Mapping[str, Any] | None = None,
+) -> list[DeviceMatch]:
+    """One :class:`DeviceMatch` per rig camera, in rig order (InputError naming the key).
+
+    A camera is found by serial, else by user id, else (drivers that have them) by address.
+    """
     serials = dict(serials or {})
     user_ids = dict(user_ids or {})
-    if not serials and not user_ids:
+    addresses = dict(addresses or {})
+    if not serials and not user_ids and not addresses:
         raise InputError(f"{driver}: give 'serials' or 'user_ids' (camera name -> device), e.g. serials = {{cam00 = \"21345678\"}}")
     names = set(rig.names)
-    for what, table in (("serials", serials), ("user_ids", user_ids)):
+    for what, table in (("serials", serials), ("user_ids", user_ids), ("addresses", addresses)):
         unknown = sorted(set(table) - names)
         if unknown:
             raise InputError(f"{driver}: {what}: camera {unknown[0]} is not in the rig (cameras: {', '.join(rig.names)})")
@@ -101,6 +111,8 @@ def camera_keys(rig: Rig, serials: Mapping[str, Any] | None, user_ids: Mapping[s
             out.append(DeviceMatch(cam, "serial", str(serials[cam])))
         elif cam in user_ids:
             out.append(DeviceMatch(cam, "user_id", str(user_ids[cam])))
+        elif cam in addresses:
+            out.append(DeviceMatch(cam, "address", str(addresses[cam])))
         else:
             raise InputError(f"{driver}: camera {cam} of the rig has no device (add it to serials or user_ids)")
     seen: dict[tuple[str, str], str] = {}
@@ -128,7 +140,13 @@ class LiveDriver:
     def __init__(self, params: Any) -> None:
         self.params = params
         self.rig = load_rig(getattr(params, "rig", ""), self.name)
-        self.matches = camera_keys(self.rig, getattr(params, "serials", None), getattr(params, "user_ids", None), self.name)
+        self.matches = camera_keys(
+            self.rig,
+            getattr(params, "serials", None),
+            getattr(params, "user_ids", None),
+            self.name,
+            getattr(params, "addresses", None),
+        )
         self._stamp = datetime.now().strftime("%Y%m%dT%H%M%S")
         self._index = 0
         self.session: Session | None = self._open_session()
@@ -182,9 +200,6 @@ class LiveDriver:
             **meta,
             "frames": {cam: dict(frames[cam].info) for cam in self.rig.names},
         }
-        part_id = getattr(self.params, "part_id", "")
-        if part_id:
-            metadata["part_id"] = part_id
         return Capture(
             name=name,
             rig=self.rig,

@@ -5,7 +5,9 @@ trigger (:meth:`HarvesterSession.trigger`):
 
 1. a device that failed before is recovered first: restarted (stop/start flushes every
    buffer) after a missed frame, reopened after a transport error;
-2. frames already queued are dropped (re-queued unread): they predate the trigger;
+2. frames already queued are dropped (re-queued unread): they predate the trigger (with a
+   hardware trigger they are kept, in order: each belongs to a pulse; after any error every
+   hardware-triggered device is restarted so the cameras' frames stay paired);
 3. ``TriggerSoftware`` is executed on software-triggered devices; for free-running devices
    the queue is dropped again and ``freerun_discard`` frames completed after the trigger are
    skipped, so the frame kept was exposed after the trigger;
@@ -186,6 +188,10 @@ class HarvesterSession:
             self.h.update()
             for m in matches:
                 cam = _Camera(m.camera, m, serial="")
+                info = self._find(m)
+                twin = next((c for c in self.cams if c.device_info is info), None)
+                if twin is not None:
+                    raise InputError(f"{DRIVER}: cameras {twin.name} and {cam.name} are the same device ({cam.match.describe()})")
                 self._open(cam)
                 self.cams.append(cam)
         except BaseException:
@@ -343,8 +349,8 @@ class HarvesterSession:
             if remaining <= 0:
                 bad = cam.incomplete - incomplete0
                 extra = f" ({bad} incomplete frame{'s' if bad != 1 else ''} dropped)" if bad else ""
-                what = "the software trigger" if cam.mode == "software" else "the trigger"
-                raise _Timeout(f"no complete frame within {self.params.timeout_s:g} s of {what}{extra}")
+                what = {"software": "of the software trigger", "hardware": "while waiting for the hardware trigger"}.get(cam.mode, "of the trigger (free-run)")
+                raise _Timeout(f"no complete frame within {self.params.timeout_s:g} s {what}{extra}")
             buf = cam.ia.try_fetch(timeout=remaining)
             if buf is None:
                 continue  # timed out, or an incomplete buffer (already re-queued by Harvesters)
@@ -390,6 +396,8 @@ class HarvesterSession:
                     errors[cam.name] = why
         live = [c for c in self.cams if c.name not in errors]
         for cam in live:
+            if cam.mode == "hardware":
+                continue  # frames queued since the last capture belong to pulses already fired
             try:
                 self._drain(cam)
             except Exception as exc:  # noqa: BLE001
@@ -429,6 +437,9 @@ class HarvesterSession:
                 errors[cam.name] = cam.broken
         latency_ms = 1e3 * (time.perf_counter() - t0)
         if errors:
+            for cam in self.cams:  # frames of one hardware pulse must stay together: resync
+                if cam.mode == "hardware" and cam.ia is not None:
+                    cam.needs_restart = True
             ordered = {c.label: errors[c.name] for c in self.cams if c.name in errors}
             raise CaptureError(f"{DRIVER}: {join_errors(ordered)}")
         return frames, {"latency_ms": round(latency_ms, 3)}
