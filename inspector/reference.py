@@ -77,6 +77,16 @@ class Reference:
         d = self._scene.compute_signed_distance(o3d.core.Tensor(p.astype(np.float32)), nsamples=1)
         return d.numpy().astype(float)
 
+    def surface_normals(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+        """Outward unit normals (world frame) of the reference surface at the points'
+        closest points; (N, 3) world mm -> (N, 3)."""
+        import open3d as o3d
+
+        p = self.to_reference_frame(points, pose)
+        ans = self._scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))
+        n = ans["primitive_normals"].numpy().astype(float)
+        return n @ pose[:3, :3].T
+
     def to_reference_frame(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """World points (N, 3) -> reference frame, using ``pose`` (reference -> world)."""
         return (np.asarray(points, float) - pose[:3, 3]) @ pose[:3, :3]

@@ -154,7 +154,20 @@ def _run(select, robust_attr: str):
         cache.pop("refine_levels", None)
         cache.pop("stride", None)
         if p.refine_pose:
-            refined = refine_on_points(sel.points, ref.vertices, ref.faces, alignment.pose, robust_mm=getattr(p, robust_attr))
+            # A size error shifts every deviation the same way: it is not a misalignment.
+            # Fitting the points themselves would slide the reference until some faces are
+            # flush (BCPS points sit on edges, each close to two faces) and report the
+            # others twice too far. So the fit is on the points moved by the median
+            # deviation along the reference normals: a uniformly small part comes out
+            # centred and uniformly small.
+            pose = alignment.pose
+            for _ in range(2):
+                offset = float(np.median(ref.signed_distance(sel.points, pose)))
+                target = sel.points - offset * ref.surface_normals(sel.points, pose)
+                refined = refine_on_points(target, ref.vertices, ref.faces, pose, robust_mm=getattr(p, robust_attr))
+                pose = refined.pose
+                if abs(offset) < 0.5 * getattr(p, robust_attr):
+                    break
             alignment = type(alignment)(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")
             sel = select(ctx, alignment.pose, p, cache)
         return ctx.evolve(bcps=sel, alignment=alignment)
