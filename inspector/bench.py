@@ -492,6 +492,10 @@ def add_parser(subparsers: Any) -> None:
     b.add_argument("--carve-voxel", type=float, default=0.1, metavar="MM", help="our carving voxel, mm (default 0.1)")
     b.add_argument("--carve-runs", type=int, default=3, help="runs of our carving; the median is compared (default 3)")
     b.add_argument("--keep", metavar="DIR", help="write the capture and the outputs here instead of a temporary folder")
+    b.add_argument("--acquisition", type=int, default=0, metavar="N",
+                   help="also measure the trigger-to-all-frames latency of N emulated GigE Vision cameras "
+                        "(aravis driver; needs root and the aravis packages), e.g. 16")
+    b.add_argument("--triggers", type=int, default=40, help="timed triggers for --acquisition (default 40)")
     b.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
 
 
@@ -568,7 +572,9 @@ def run(args: argparse.Namespace) -> int:
         carving = compare_carving(read_capture(folder), recipe, carve_voxel=args.carve_voxel, open3d_voxel=args.open3d_voxel,
                                   carve_runs=args.carve_runs, use_open3d=not args.no_open3d,
                                   open3d_max_gb=args.open3d_max_gb, progress=say)
+    acquisition = acquisition_latency(args.acquisition, args.triggers, progress=say) if args.acquisition else None
     doc = {
+        "acquisition": acquisition,
         "config": {
             "recipe": str(args.recipe), "recipe_name": recipe.name, "reference": recipe.reference, "capture": cap_info,
             "runs": args.runs, "warmup_runs": 1, "carve_runs": args.carve_runs, "carve_voxel_mm": args.carve_voxel,
@@ -583,6 +589,14 @@ def run(args: argparse.Namespace) -> int:
     doc["verdicts"] = verdicts
     if not args.quiet:
         _print_report(doc)
+        if acquisition is not None:
+            if "skipped" in acquisition:
+                print(f"\n  acquisition latency: not measured ({acquisition['skipped']})")
+            else:
+                print(f"\n  acquisition: {acquisition['cameras']} emulated GigE Vision cameras, trigger -> all frames: "
+                      f"median {acquisition['median_ms']:.1f} ms (p10 {acquisition['p10_ms']:.1f}, p90 {acquisition['p90_ms']:.1f}; "
+                      f"camera {acquisition['camera_median_ms']:.1f} + driver {acquisition['overhead_median_ms']:.1f} ms), "
+                      f"{acquisition['ok']} ok / {acquisition['failed']} failed")
     if args.json:
         p = Path(args.json)
         if p.parent != Path(""):
@@ -591,6 +605,34 @@ def run(args: argparse.Namespace) -> int:
         say(f"\n  figures written to {p}")
     measured = [t["met"] for t in doc["targets"].values() if t["met"] is not None]
     return 0 if all(measured) else 1
+
+
+def acquisition_latency(n: int, triggers: int, progress=lambda s: None) -> dict[str, Any]:
+    """Median trigger-to-all-frames latency of ``n`` emulated GigE Vision cameras.
+
+    Starts ``n`` ``arv-fake-gv-camera-0.8`` emulators in a private network namespace
+    (:class:`inspector_drivers.aravis.emulator.EmulatedRig`) and drives them with the
+    ``aravis`` driver; returns ``{"skipped": reason}`` where that is not possible here.
+    """
+    from inspector_drivers.aravis.emulator import EmulatedRig, missing_requirements, write_rig
+
+    why = missing_requirements()
+    if why:
+        return {"skipped": why}
+    with tempfile.TemporaryDirectory(prefix="inspector-acq-") as tmp:
+        root = Path(tmp)
+        write_rig(root / "rig.json", n)
+        progress(f"Starting {n} emulated cameras ...")
+        with EmulatedRig(n, log_dir=root / "logs") as rig:  # started on entry
+            with rig.client() as client:
+                params = {"rig": str(root / "rig.json"), "serials": rig.serials_table(), "count": 0, "timeout_s": 1.0}
+                r = client.request({"cmd": "open", "driver": "aravis", "params": params}, timeout=120)
+                if not r.get("ok"):
+                    return {"skipped": f"could not open the emulated cameras: {r.get('error')}"}
+                progress(f"Triggering {triggers} times ...")
+                stats = client.request({"cmd": "latency", "triggers": triggers, "warmup": 3}, timeout=600)
+    keys = ("cameras", "ok", "failed", "median_ms", "p10_ms", "p90_ms", "min_ms", "max_ms", "camera_median_ms", "overhead_median_ms")
+    return {k: stats.get(k) for k in keys}
 
 
 def _json_default(o: Any) -> Any:
