@@ -87,15 +87,10 @@ def driver_table(recipe: str | None) -> tuple[str | None, dict[str, Any]]:
 
     if not recipe:
         return None, {}
+    from inspector.recipe import read_recipe_toml
+
     p = Path(recipe)
-    if not p.is_file():
-        raise RecipeError(f"{p}: recipe file not found")
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except UnicodeDecodeError:
-        raise RecipeError(f"{p.name}: not a UTF-8 text file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise RecipeError(f"{p.name}: not valid TOML ({exc})") from None
+    data = read_recipe_toml(p)
     drv = data.get("driver", {})
     if not isinstance(drv, dict):
         raise RecipeError(f"{p.name}: driver: expected a table")

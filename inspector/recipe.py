@@ -41,7 +41,7 @@ from inspector.params import build_params
 from inspector.pipeline import Band, Region, Tolerance
 from inspector.registry import DriverSpec, StageSpec
 
-__all__ = ["Step", "DriverStep", "Recipe", "load_recipe", "parse_recipe"]
+__all__ = ["Step", "DriverStep", "Recipe", "load_recipe", "parse_recipe", "read_recipe_toml"]
 
 
 @dataclass(frozen=True)
@@ -220,16 +220,20 @@ def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, 
     return Recipe(name, path, ref, driver, tuple(steps), tol)
 
 
-def load_recipe(path: str | Path, pm: Any, *, reference: str | None = None) -> Recipe:
-    """Read and validate a recipe file; raises RecipeError naming the file and key."""
+def read_recipe_toml(path: str | Path) -> dict[str, Any]:
+    """The TOML document of a recipe file, unvalidated; RecipeError naming the file."""
     p = Path(path)
     if not p.is_file():
         raise RecipeError(f"{p}: recipe file not found")
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
         raise RecipeError(f"{p.name}: not a UTF-8 text file") from None
     except tomllib.TOMLDecodeError as e:
         raise RecipeError(f"{p.name}: not valid TOML ({e})") from None
-    return parse_recipe(data, pm, path=p, reference=reference)
+
+
+def load_recipe(path: str | Path, pm: Any, *, reference: str | None = None) -> Recipe:
+    """Read and validate a recipe file; raises RecipeError naming the file and key."""
+    return parse_recipe(read_recipe_toml(path), pm, path=Path(path), reference=reference)
 

@@ -75,6 +75,7 @@ __all__ = [
     "read_capture",
     "write_capture",
     "is_capture_folder",
+    "to_rgb_order",
 ]
 
 RIG_FILE = "rig.json"
@@ -387,17 +388,7 @@ def _decode_png(path: Path, label: str, cam: Camera) -> np.ndarray:
     h, w = img.shape[:2]
     if (w, h) != (cam.width, cam.height):
         raise CaptureError(f"{label}: size {w}x{h}, {RIG_FILE} says {cam.width}x{cam.height}")
-    if img.ndim == 3:
-        c = img.shape[2]
-        if c == 1:
-            img = img[:, :, 0]
-        elif c == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-        elif c == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
-        else:
-            raise CaptureError(f"{label}: unsupported number of channels {c}")
-    img = np.ascontiguousarray(img)
+    img = to_rgb_order(img, label, CaptureError)
     img.setflags(write=False)
     return img
 
@@ -630,3 +621,23 @@ def write_capture(
     _write_json(folder / RIG_FILE, rig_json)
     return folder
 
+
+
+def to_rgb_order(img: np.ndarray, label: str, error: type[Exception] = CaptureError) -> np.ndarray:
+    """A decoded OpenCV image (H, W[, C]) in library-neutral order: grey, RGB or RGBA.
+
+    Raises ``error`` naming ``label`` for a channel count other than 1, 3 or 4.
+    """
+    import cv2
+
+    if img.ndim == 3:
+        c = img.shape[2]
+        if c == 1:
+            img = img[:, :, 0]
+        elif c == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+        elif c == 4:
+            img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
+        else:
+            raise error(f"{label}: unsupported number of channels {c}")
+    return np.ascontiguousarray(img)

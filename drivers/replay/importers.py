@@ -155,17 +155,9 @@ def _read_image(path: Path) -> np.ndarray:
             img = np.clip(np.rint(np.nan_to_num(img) * 65535.0), 0, 65535).astype(np.uint16)
         else:
             raise InputError(f"{_label(path)}: unsupported pixel type {img.dtype}")
-    if img.ndim == 3:
-        c = img.shape[2]
-        if c == 1:
-            img = img[:, :, 0]
-        elif c == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-        elif c == 4:
-            img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGBA)
-        else:
-            raise InputError(f"{_label(path)}: unsupported number of channels {c}")
-    return np.ascontiguousarray(img)
+    from inspector_drivers.replay.folder import to_rgb_order
+
+    return to_rgb_order(img, _label(path), InputError)
 
 
 def _find_image(folder: Path, stem: str) -> Path | None:
