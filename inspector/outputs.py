@@ -120,6 +120,10 @@ def write_result(result: InspectionResult, outdir: Path, *, reference: Any = Non
             "v": b.pixel[:, 1].astype(np.float32),
             "segment_mm": b.segment_mm.astype(np.float32),
         }
+        if result.rig is not None and len(result.rig):
+            from inspector.kernels.bcps import confidence
+
+            cols["confidence"] = confidence(b.segment_mm, result.rig.footprint_mm()).astype(np.float32)
         write_ply(folder / BCPS_PLY, cols)
     if result.reconstruction is not None:
         r = result.reconstruction

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from inspector import hookimpl
+from inspector.kernels.bcps import confidence
 from inspector.kernels.deviation import cluster_points, deviation_stats
 from inspector.model import Defect, Evaluation
 from inspector.params import param
@@ -83,6 +84,14 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
         "bcps_method": sel.method,
         "segment_mm": {"median": float(np.median(sel.segment_mm)) if n else 0.0},
     }
+    if n and len(ctx.capture.rig):
+        conf = confidence(sel.segment_mm, ctx.capture.rig.footprint_mm())
+        stats["confidence"] = {
+            "mean": float(conf.mean()),
+            "p10": float(np.percentile(conf, 10)),
+            "below_0.5": float((conf < 0.5).mean()),
+            "defect_points_mean": float(conf[out].mean()) if out.any() else None,
+        }
     if tol.regions:
         stats["regions"] = {
             name: {"n_points": int((region == k).sum()), "deviation_mm": deviation_stats(dev[region == k])}

@@ -23,7 +23,7 @@ import numpy as np
 from inspector.kernels.silhouette import sample_bilinear
 from inspector.model import Camera
 
-__all__ = ["ray_ranges", "View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box"]
+__all__ = ["confidence", "ray_ranges", "View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box"]
 
 SignedDistance = Callable[[np.ndarray], np.ndarray]
 
@@ -378,3 +378,25 @@ def select_on_surface(
     zmin = np.minimum.reduceat(zs, first)
     pix = np.stack([ui[chosen], vi[chosen]], axis=1).astype(float)
     return chosen, pix, zmax - zmin, sd[chosen]
+
+
+#: Candidate-segment length, in pixel footprints, at which a point's confidence is 0.5.
+CONFIDENCE_HALF_PX = 10.0
+
+
+def confidence(segment_mm: np.ndarray, footprint_mm: float) -> np.ndarray:
+    """Confidence in [0, 1] of BCPS points from their candidate-segment length.
+
+    The paper's future work: a contour ray that meets the reconstruction along a long
+    segment (a grazing ray, a concavity, a bulge) leaves the point's position along the ray
+    uncertain; a short one pins it down. ``confidence = 1 / (1 + L / (10 px))`` with ``L``
+    the segment length in pixel footprints: 1 for a point-like candidate set, 0.5 for a
+    segment of 10 pixels, 0.1 for 90 pixels.
+
+    Parameters
+    ----------
+    segment_mm : (N,) float
+    footprint_mm : float
+        Pixel footprint at the rig centre, mm.
+    """
+    return 1.0 / (1.0 + np.asarray(segment_mm, float) / (CONFIDENCE_HALF_PX * footprint_mm))

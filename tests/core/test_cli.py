@@ -57,7 +57,9 @@ def test_result_files_follow_the_contract(e2e):
     assert np.array(res["pose"]).shape == (4, 4)
     assert res["points"] == {"bcps": "bcps_points.ply", "reconstruction": "reconstruction.ply"}
     pts = read_ply(out / "good" / "bcps_points.ply")
-    assert {"x", "y", "z", "deviation"} <= set(pts) and len(pts["x"]) > 5000
+    assert {"x", "y", "z", "deviation", "confidence", "segment_mm"} <= set(pts) and len(pts["x"]) > 5000
+    assert np.all((pts["confidence"] > 0) & (pts["confidence"] <= 1))
+    assert 0 < res["stats"]["confidence"]["mean"] <= 1
     assert np.all(np.abs(pts["deviation"]) < 0.2)
     rec = read_ply(out / "good" / "reconstruction.ply")
     assert len(rec["x"]) > 1000

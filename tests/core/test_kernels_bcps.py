@@ -122,3 +122,8 @@ def test_surface_selection_takes_the_signed_minimum():
     idx, pix, seg, dev = bk.select_on_surface(pts, sd, cam, contour)
     assert list(idx) == [1] and dev[0] == -0.2 and tuple(pix[0]) == (5.0, 5.0)
     assert seg[0] == pytest.approx(20.0)
+
+
+def test_confidence_from_segment_length():
+    c = bk.confidence(np.array([0.0, 1.0, 9.0]), 0.1)
+    assert np.allclose(c, [1.0, 0.5, 0.1])
