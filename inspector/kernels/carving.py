@@ -713,7 +713,9 @@ def _refine_points(
     return X[:, good].T.copy(), (-grad[:, good] / gn[good]).T.copy(), f[good]
 
 
-def _mesh(views: Sequence[_View], lo: np.ndarray, hi: np.ndarray, mv: float) -> tuple[np.ndarray, np.ndarray, dict]:
+def _mesh(
+    views: Sequence[_View], lo: np.ndarray, hi: np.ndarray, mv: float, feval: Any = None
+) -> tuple[np.ndarray, np.ndarray, dict]:
     """Marching cubes of the hull function on a grid of pitch ``mv`` over [lo, hi].
 
     The grid is evaluated in a narrow band only: blocks of nodes whose centre value
@@ -722,6 +724,11 @@ def _mesh(views: Sequence[_View], lo: np.ndarray, hi: np.ndarray, mv: float) -> 
     exact values, so the marching-cubes vertices are exact interpolations of ``f``.
     """
     from skimage.measure import marching_cubes
+
+    if feval is None:
+
+        def feval(P: np.ndarray) -> np.ndarray:
+            return _f_all(views, P)[0]
 
     n = np.maximum(np.ceil((hi - lo) / mv - 1e-9).astype(np.int64) + 1, 2)
     vals = np.zeros(tuple(n), dtype=np.float32)
@@ -737,7 +744,7 @@ def _mesh(views: Sequence[_View], lo: np.ndarray, hi: np.ndarray, mv: float) -> 
     while starts.shape[1]:
         if B == 1:
             P = lo[:, None] + starts * mv
-            f = _f_all(views, P)[0]
+            f = feval(P)
             n_eval += f.size
             vals[starts[0], starts[1], starts[2]] = np.clip(f, -1e3, 1e3)
             exact[starts[0], starts[1], starts[2]] = True
@@ -745,7 +752,7 @@ def _mesh(views: Sequence[_View], lo: np.ndarray, hi: np.ndarray, mv: float) -> 
         ends = np.minimum(starts + B - 1, nm1)
         P = lo[:, None] + 0.5 * (starts + ends) * mv
         hd = 0.5 * mv * np.sqrt(np.sum((ends - starts) ** 2.0, axis=0))
-        f = _f_all(views, P)[0]
+        f = feval(P)
         n_eval += f.size
         certain = np.abs(f) > lip * hd + 1e-9
         if certain.any():
@@ -771,7 +778,7 @@ def _mesh(views: Sequence[_View], lo: np.ndarray, hi: np.ndarray, mv: float) -> 
     if need.any():
         ii = np.nonzero(need)
         P = lo[:, None] + np.stack(ii) * mv
-        vals[ii] = np.clip(_f_all(views, P)[0], -1e3, 1e3)
+        vals[ii] = np.clip(feval(P), -1e3, 1e3)
         n_eval += len(ii[0])
     info = dict(mesh_grid=int(np.prod(n)), mesh_evaluated=n_eval)
     if not (vals.max() > 0.0):
@@ -796,6 +803,7 @@ def carve(
     coarse_mm: float | None = None,
     mesh_voxel_mm: float | None = None,
     stats: dict[str, Any] | None = None,
+    backend: str = "auto",
 ) -> Reconstruction:
     """Coarse-to-fine visual hull of binary silhouettes.
 
@@ -830,6 +838,11 @@ def carve(
         ``mesh_evaluated``, ``time_s`` (``carve``: distance transforms, bounds and cell
         tests; ``points``: Newton projection; ``mesh``; ``total``, seconds); for
         an empty hull only ``n_points`` = 0 and ``empty_reason``.
+    backend : {"auto", "numba", "numpy"}
+        ``"numba"``: compiled kernels for the cell tests, the Newton points and the mesh
+        grid (:mod:`inspector.kernels.carving_jit`); ``"numpy"``: the pure-numpy
+        reference (same cells, same points to rounding); ``"auto"`` (default): numba
+        when it can be imported.
 
     Returns
     -------
@@ -849,6 +862,15 @@ def carve(
     ValueError
         Bad arguments (sizes, ``voxel_mm <= 0``, malformed ``bounds``).
     """
+    if backend not in ("auto", "numba", "numpy"):
+        raise ValueError(f"backend must be 'auto', 'numba' or 'numpy', got {backend!r}")
+    if backend == "auto":
+        try:
+            import numba  # noqa: F401
+
+            backend = "numba"
+        except ImportError:  # pragma: no cover - numba is a dependency
+            backend = "numpy"
     voxel_mm = float(voxel_mm)
     if not (voxel_mm > 0 and np.isfinite(voxel_mm)):
         raise ValueError(f"voxel_mm must be > 0, got {voxel_mm}")
@@ -878,8 +900,23 @@ def carve(
     bounds = np.asarray(bounds, float)
     if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or not np.all(bounds[1] > bounds[0]):
         raise ValueError(f"bounds must be (2, 3) [min, max], got {bounds!r}")
-    views = [_prepare(c, signed_distance(m, open_border=o), o) for c, m, o in zip(cameras, masks, ob)]
+    if backend == "numba" and len(cameras) > 1:
+        # the distance transforms release the GIL: one thread per core
+        import os
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=min(len(cameras), os.cpu_count() or 1)) as ex:
+            sdts = list(ex.map(lambda mo: signed_distance(mo[0], open_border=mo[1]), zip(masks, ob)))
+    else:
+        sdts = [signed_distance(m, open_border=o) for m, o in zip(masks, ob)]
+    views = [_prepare(c, s, o) for c, s, o in zip(cameras, sdts, ob)]
     n_cam = len(views)
+    jit: Any = None
+    stack: Any = None
+    if backend == "numba":
+        from inspector.kernels import carving_jit as jit
+
+        stack = jit.stack_views(views)
 
     extent = bounds[1] - bounds[0]
     target = float(coarse_mm) if coarse_mm else float(np.max(extent)) / 16.0
@@ -903,29 +940,57 @@ def carve(
     t_points = 0.0
     # Depth first over chunks of cells: memory stays bounded (about 8 chunks per level)
     # whatever the voxel size and the part's surface.
-    stack: list[tuple[int, np.ndarray, np.ndarray]] = [(0, cells0, active0)]
-    while stack:
-        level, cells, active = stack.pop()
+    todo: list[tuple[int, np.ndarray, np.ndarray]] = [(0, cells0, active0)]
+    while todo:
+        level, cells, active = todo.pop()
         if len(cells) > _CELL_CHUNK:
             for s in reversed(range(0, len(cells), _CELL_CHUNK)):
-                stack.append((level, cells[s : s + _CELL_CHUNK], active[s : s + _CELL_CHUNK]))
+                todo.append((level, cells[s : s + _CELL_CHUNK], active[s : s + _CELL_CHUNK]))
             continue
         size = coarse / 2**level
         r = size * math.sqrt(3.0) / 2.0
         finest = level == levels
-        act = active.copy()
-        P = origin[:, None] + (cells.T + 0.5) * size  # (3, n) centres
-        carved = np.zeros(len(cells), dtype=bool)
-        for c, v in enumerate(views):
-            sel = np.flatnonzero(act[:, c] & ~carved)
-            if sel.size == 0:
+        if jit is not None:
+            status, act = jit.classify_cells(stack, cells, active, origin, size, r, _LIP, _SLACK_PX)
+            cnt = np.bincount(status, minlength=3)
+            nb = int(cnt[2])
+            ls = level_stats[level]
+            ls["evaluated"] += len(cells)
+            ls["carved"] += int(cnt[0])
+            ls["inside"] += int(cnt[1])
+            ls["boundary"] += nb
+            if cnt[1] == 0 and nb == 0:
                 continue
-            out, inn = _classify(v, P[:, sel], r)
-            carved[sel[out]] = True
-            act[sel[inn], c] = False
-        undecided = act.any(axis=1)
-        inside = ~carved & ~undecided
-        bnd = ~carved & undecided
+            lohi, A, B = jit.gather(cells, act, status, nb, finest, origin, size)
+            if np.all(lohi[1] > lohi[0]):
+                occ_lo = np.minimum(occ_lo, origin + lohi[0] * size)
+                occ_hi = np.maximum(occ_hi, origin + lohi[1] * size)
+            if nb == 0:
+                continue
+            if finest:
+                tp = time.perf_counter()
+                X, N, f = jit.refine_points(stack, A, B, voxel_mm, h)
+                pts_l.append(X)
+                nrm_l.append(N)
+                res_l.append(f)
+                t_points += time.perf_counter() - tp
+            else:
+                todo.append((level + 1, A, B))
+            continue
+        else:
+            act = active.copy()
+            P = origin[:, None] + (cells.T + 0.5) * size  # (3, n) centres
+            carved = np.zeros(len(cells), dtype=bool)
+            for c, v in enumerate(views):
+                sel = np.flatnonzero(act[:, c] & ~carved)
+                if sel.size == 0:
+                    continue
+                out, inn = _classify(v, P[:, sel], r)
+                carved[sel[out]] = True
+                act[sel[inn], c] = False
+            undecided = act.any(axis=1)
+            inside = ~carved & ~undecided
+            bnd = ~carved & undecided
         ls = level_stats[level]
         ls["evaluated"] += len(cells)
         ls["carved"] += int(carved.sum())
@@ -947,7 +1012,7 @@ def carve(
             t_points += time.perf_counter() - tp
         else:
             b = cells[bnd]
-            stack.append(
+            todo.append(
                 (
                     level + 1,
                     (b[:, None, :] * 2 + _CHILD_OFFSETS[None]).reshape(-1, 3),
@@ -972,7 +1037,13 @@ def carve(
     mv = float(mesh_voxel_mm) if mesh_voxel_mm else max(voxel_mm, 0.5)
     info: dict[str, Any] = dict(mesh_grid=0, mesh_evaluated=0)
     if np.all(np.isfinite(occ_lo)) and len(points):
-        verts, faces, info = _mesh(views, occ_lo - mv, occ_hi + mv, mv)
+        feval = None
+        if jit is not None:
+
+            def feval(P: np.ndarray) -> np.ndarray:
+                return jit.f_all(stack, P.T)[0]
+
+        verts, faces, info = _mesh(views, occ_lo - mv, occ_hi + mv, mv, feval)
     else:
         verts, faces = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
     t3 = time.perf_counter()

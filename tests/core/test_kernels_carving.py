@@ -409,3 +409,37 @@ def test_bad_arguments(rig_lo, sphere_lo):
         ck.carve(rig_lo, [m[:, :-1] for m in sphere_lo], voxel_mm=0.5)
     with pytest.raises(ValueError):
         ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, bounds=np.zeros((2, 3)))
+
+
+def _assert_backends_agree(cams, masks, **kw):
+    st_a: dict = {}
+    st_b: dict = {}
+    a = ck.carve(cams, masks, backend="numba", stats=st_a, **kw)
+    b = ck.carve(cams, masks, backend="numpy", stats=st_b, **kw)
+    assert len(b.points) > 100
+    assert st_a["levels"] == st_b["levels"]  # the same cells carved, inside and boundary
+    np.testing.assert_array_equal(st_a["occupied_bounds"], st_b["occupied_bounds"])
+    assert a.points.shape == b.points.shape
+    np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(a.normals, b.normals, rtol=0, atol=1e-9)
+    assert a.faces.shape == b.faces.shape
+    np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(a.faces, b.faces)
+
+
+def test_numba_backend_matches_numpy(rig_lo, cube_lo):
+    pytest.importorskip("numba")
+    _assert_backends_agree(rig_lo, cube_lo, voxel_mm=0.4)
+
+
+def test_numba_backend_matches_numpy_distortion_open_border(rig_lo, sphere_lo):
+    pytest.importorskip("numba")
+    dist = np.array([-0.2, 0.1, 0.001, -0.001, 0.0])
+    cams = [look_at(c.name, c.centre, 2000.0, 512, dist=dist) for c in rig_lo]
+    ob = [i % 5 == 0 for i in range(len(cams))]
+    _assert_backends_agree(cams, sphere_lo, voxel_mm=0.5, open_border=ob, mesh_voxel_mm=0.7)
+
+
+def test_bad_backend(rig_lo, sphere_lo):
+    with pytest.raises(ValueError):
+        ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, backend="cuda")
