@@ -149,8 +149,9 @@ def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight):
 def ray_ranges(
     camera: Camera, uv: np.ndarray, origin: np.ndarray, dirs: np.ndarray, points: np.ndarray, radius_mm: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Where each contour ray can meet the reconstruction: the span, along the ray, of the
-    reconstruction's surface points within about ``radius_mm`` of it (plus that margin).
+    """Where each contour ray can meet the reconstruction: the depth span of the
+    reconstruction's surface points projecting within about ``radius_mm`` of the ray (plus
+    that margin), from a coarse image grid (vectorised, conservative).
 
     Parameters
     ----------
@@ -168,7 +169,7 @@ def ray_ranges(
     t0, t1 : (M,) float
         ``t0 > t1`` for a ray with no reconstruction point near it.
     """
-    from scipy.spatial import cKDTree
+    from scipy.ndimage import maximum_filter, minimum_filter
 
     M = len(uv)
     t0 = np.full(M, np.inf)
@@ -177,17 +178,28 @@ def ray_ranges(
         return t0, t1
     puv, z = camera.project(points)
     front = z > 0
-    puv, P = puv[front], points[front]
-    rho = radius_mm * float(np.sqrt(camera.K[0, 0] * camera.K[1, 1])) / float(np.median(z[front]))
-    lists = cKDTree(puv).query_ball_point(uv, rho)
-    lengths = np.fromiter((len(x) for x in lists), np.int64, M)
-    if lengths.sum() == 0:
+    puv, z = puv[front], z[front]
+    if z.size == 0:
         return t0, t1
-    idx = np.concatenate([np.asarray(x, np.int64) for x in lists if len(x)])
-    ray = np.repeat(np.arange(M), lengths)
-    t = np.einsum("ij,ij->i", P[idx] - origin, dirs[ray])
-    np.minimum.at(t0, ray, t)
-    np.maximum.at(t1, ray, t)
+    rho = radius_mm * float(np.sqrt(camera.K[0, 0] * camera.K[1, 1])) / float(np.median(z))
+    # Depth range of the reconstruction per image cell of rho px, widened to the 3x3
+    # neighbouring cells: every point within rho px of a contour point is counted.
+    cell = np.floor(puv / rho).astype(np.int64)
+    lo = cell.min(axis=0) - 1
+    cell -= lo
+    shape = (int(cell[:, 1].max()) + 2, int(cell[:, 0].max()) + 2)
+    zmin = np.full(shape, np.inf)
+    zmax = np.full(shape, -np.inf)
+    np.minimum.at(zmin, (cell[:, 1], cell[:, 0]), z)
+    np.maximum.at(zmax, (cell[:, 1], cell[:, 0]), z)
+    zmin = minimum_filter(zmin, size=3, mode="constant", cval=np.inf)
+    zmax = maximum_filter(zmax, size=3, mode="constant", cval=-np.inf)
+    q = np.floor(uv / rho).astype(np.int64) - lo
+    ok = (q[:, 0] >= 0) & (q[:, 0] < shape[1]) & (q[:, 1] >= 0) & (q[:, 1] < shape[0])
+    # A ray point at depth z lies at t = z / cos(angle to the optical axis).
+    cos = dirs @ np.asarray(camera.R, float)[2]
+    t0[ok] = zmin[q[ok, 1], q[ok, 0]] / cos[ok]
+    t1[ok] = zmax[q[ok, 1], q[ok, 0]] / cos[ok]
     return t0 - radius_mm, t1 + radius_mm
 
 
