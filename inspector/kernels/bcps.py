@@ -124,13 +124,18 @@ def _lipschitz_px_per_mm(views: Sequence[View], bounds: np.ndarray) -> float:
     return worst
 
 
-def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight):
+def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight, centre=None):
     """Hull violation (px), signed distance and selection cost on a (R, K) grid of ray
     parameters ``t`` (entries where ``valid`` is False are skipped: violation inf).
 
     The cost is the signed distance plus ``weight`` mm per pixel of violation beyond
     ``tol`` (inf beyond ``eps``): strict BCPS where the silhouettes agree, and a graceful
     choice where sub-pixel contours disagree by a fraction of a pixel (silhouette corners).
+
+    ``centre = (t_c, s_c, c_c)`` per row (a sample already evaluated: its ray parameter,
+    signed distance and cost) prunes exactly: the signed distance is 1-Lipschitz, so a
+    sample's cost is at least ``s_c - |t - t_c| + penalty``; samples whose bound cannot beat
+    ``c_c`` are not queried (their cost stays inf).
     """
     R, K = t.shape
     viol = np.full(R * K, np.inf)
@@ -140,6 +145,10 @@ def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight):
     v = hull(X, eps)
     viol[flat] = v
     keep = v <= eps
+    if centre is not None:
+        t_c, s_c, c_c = (np.repeat(a, K)[flat] for a in centre)
+        bound = s_c - np.abs(t.ravel()[flat] - t_c) + weight * np.maximum(v - tol, 0.0)
+        keep &= ~(bound >= c_c)
     if keep.any():
         sd[flat[keep]] = sd_fn(X[keep])
     cost = sd + weight * np.maximum(viol - tol, 0.0)
@@ -328,12 +337,18 @@ def select_on_rays(
         for _ in range(refine_levels):
             tt = tbest[:, None] + h * offsets[None, :]
             eps = max(0.5 * lip * h / half, accept_px)
-            v2, s2, c2 = _evaluate(origin, d, tt, every, hull, sd_fn, eps, tolerance_px, weight)
+            cbest = sbest + weight * np.maximum(vbest - tolerance_px, 0.0)
+            v2, s2, c2 = _evaluate(
+                origin, d, tt, every, hull, sd_fn, eps, tolerance_px, weight, centre=(tbest, sbest, cbest)
+            )
             has = np.isfinite(c2).any(axis=1)
             k2 = np.where(has, np.argmin(c2, axis=1), np.argmin(v2, axis=1))
-            tbest = tt[ar, k2]
-            vbest = v2[ar, k2]
-            sbest = s2[ar, k2]
+            # Keep the previous best where nothing queried beats it (pruned samples cannot).
+            stay = np.isfinite(cbest) & ~(c2[ar, k2] < cbest)
+            move = ~stay
+            tbest = np.where(move, tt[ar, k2], tbest)
+            vbest = np.where(move, v2[ar, k2], vbest)
+            sbest = np.where(move, s2[ar, k2], sbest)
             h = h / half
         ok = (vbest <= accept_px) & np.isfinite(sbest)
         sel = rows[ok]
