@@ -161,7 +161,7 @@ def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray, outside: fl
     return np.where(valid, val, outside)
 
 
-def inside_map(soft: np.ndarray) -> np.ndarray:
+def inside_map(soft: np.ndarray, margin: int = 16) -> np.ndarray:
     """Signed "inside-ness" of every pixel, in pixels: >= 0 inside the silhouette.
 
     Near the contour it is ``soft - 0.5`` (the coverage ramp, whose 0.5 level is the
@@ -181,11 +181,18 @@ def inside_map(soft: np.ndarray) -> np.ndarray:
     import cv2
 
     mask = soft >= 0.5
+    out = np.full(soft.shape, -1e6, np.float32)
     if not mask.any():
-        return np.full(soft.shape, -1e6, np.float32)
-    edt = cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, 5)
-    g = np.where(edt <= 1.0, soft - 0.5, 0.5 - edt)
-    return g.astype(np.float32)
+        return out
+    # Only a band around the object matters (farther is "far outside" for every use):
+    # work on its bounding box plus ``margin`` pixels.
+    ys, xs = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    y0, y1 = max(ys[0] - margin, 0), min(ys[-1] + margin + 1, soft.shape[0])
+    x0, x1 = max(xs[0] - margin, 0), min(xs[-1] + margin + 1, soft.shape[1])
+    m = mask[y0:y1, x0:x1]
+    edt = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
+    out[y0:y1, x0:x1] = np.where(edt <= 1.0, soft[y0:y1, x0:x1] - 0.5, 0.5 - edt)
+    return out
 
 
 def refine_contour_area(uv: np.ndarray, raw: np.ndarray, *, half_window: int = 2) -> np.ndarray:
