@@ -76,6 +76,7 @@ __all__ = [
     "write_capture",
     "is_capture_folder",
     "to_rgb_order",
+    "decode_image",
 ]
 
 RIG_FILE = "rig.json"
@@ -359,30 +360,40 @@ def _list_pngs(folder: Path, sub: str, rig: Rig) -> dict[str, Path]:
     return found
 
 
-def _decode_png(path: Path, label: str, cam: Camera) -> np.ndarray:
-    """Read one PNG strictly; returns uint8/uint16 grey (H, W), RGB or RGBA. Read-only."""
+def decode_image(path: Path, label: str, error: type[Exception] = CaptureError, *, png_only: bool = True) -> np.ndarray:
+    """Read and decode one image file strictly; raises ``error`` naming ``label``.
+
+    Returns cv2's array (BGR order, any dtype): callers check the pixel type and size.
+    A PNG must be complete (cv2 may return a partly decoded image for a cut file, so any
+    PNG whose IEND chunk, the last chunk of every complete PNG, is missing is refused).
+    """
     import cv2
 
     if not path.is_file():
-        raise CaptureError(f"{label}: not a file")
+        raise error(f"{label}: {'missing image' if not path.exists() else 'not a file'}")
     try:
         data = path.read_bytes()
     except OSError as exc:
-        raise CaptureError(f"{label}: cannot be read ({exc.strerror or exc})") from None
+        raise error(f"{label}: cannot be read ({exc.strerror or exc})") from None
     if not data:
-        raise CaptureError(f"{label}: empty file")
-    if not data.startswith(_PNG_SIGNATURE):
-        raise CaptureError(f"{label}: not a PNG file")
-    # cv2 may return a partly decoded image for a cut file: refuse any file whose
-    # IEND chunk (the last chunk of every complete PNG) is missing.
-    if data.rfind(_PNG_IEND, max(0, len(data) - 1024)) < 0:
-        raise CaptureError(f"{label}: truncated PNG (no IEND chunk)")
+        raise error(f"{label}: empty file")
+    is_png = data.startswith(_PNG_SIGNATURE)
+    if png_only and not is_png:
+        raise error(f"{label}: not a PNG file")
+    if is_png and data.rfind(_PNG_IEND, max(0, len(data) - 1024)) < 0:
+        raise error(f"{label}: truncated PNG (no IEND chunk)")
     try:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error:
         img = None
     if img is None:
-        raise CaptureError(f"{label}: unreadable PNG (corrupt data)")
+        raise error(f"{label}: unreadable {'PNG (corrupt data)' if png_only else 'image (corrupt or unknown format)'}")
+    return img
+
+
+def _decode_png(path: Path, label: str, cam: Camera) -> np.ndarray:
+    """Read one PNG strictly; returns uint8/uint16 grey (H, W), RGB or RGBA. Read-only."""
+    img = decode_image(path, label)
     if img.dtype not in (np.uint8, np.uint16):
         raise CaptureError(f"{label}: unsupported pixel type {img.dtype}, expected 8- or 16-bit")
     h, w = img.shape[:2]

@@ -130,33 +130,14 @@ def _read_text(path: Path) -> str:
 
 def _read_image(path: Path) -> np.ndarray:
     """Any image cv2 reads -> uint8/uint16 array, grey (H, W), RGB or RGBA (cv2's BGR swapped)."""
-    import cv2
+    from inspector_drivers.replay.folder import decode_image, to_rgb_order
 
-    if not path.exists():
-        raise InputError(f"{_label(path)}: missing image")
-    if not path.is_file():
-        raise InputError(f"{_label(path)}: not a file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{_label(path)}: cannot be read ({exc.strerror or exc})") from None
-    if not data:
-        raise InputError(f"{_label(path)}: empty file")
-    if path.suffix.lower() == ".png" and data.rfind(b"IEND", max(0, len(data) - 64)) < 0:
-        raise InputError(f"{_label(path)}: truncated PNG (no IEND chunk)")
-    try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
-    if img is None:
-        raise InputError(f"{_label(path)}: unreadable image (corrupt or unknown format)")
+    img = decode_image(path, _label(path), InputError, png_only=False)
     if img.dtype not in (np.uint8, np.uint16):
         if img.dtype.kind == "f":  # EXR & co.: [0, 1] floats -> 16 bit
             img = np.clip(np.rint(np.nan_to_num(img) * 65535.0), 0, 65535).astype(np.uint16)
         else:
             raise InputError(f"{_label(path)}: unsupported pixel type {img.dtype}")
-    from inspector_drivers.replay.folder import to_rgb_order
-
     return to_rgb_order(img, _label(path), InputError)
 
 
