@@ -15,7 +15,7 @@ import numpy as np
 from inspector import hookimpl
 from inspector.errors import StageError
 from inspector.kernels import bcps as bk
-from inspector.model import BcpsPoints
+from inspector.model import Alignment, BcpsPoints
 from inspector.params import param
 from inspector.pipeline import InspectionContext
 from inspector.registry import StageRegistry, StageSpec
@@ -54,15 +54,12 @@ def _views(ctx: InspectionContext, cache: dict) -> list[bk.View]:
 
         sils = ctx.need("silhouettes", "bcps")
         cache["views"] = [bk.View(cam, inside_map(s.soft), s.touches_border) for cam, s in zip(ctx.capture.rig.cameras, sils)]
-        if p_backend(cache) == "numba":
+        if cache.get("backend", "numba") == "numba":
             from inspector.kernels.hull_jit import stack_views
 
             cache["stack"] = stack_views(cache["views"])
     return cache["views"]
 
-
-def p_backend(cache: dict) -> str:
-    return cache.get("backend", "numba")
 
 
 def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: dict) -> BcpsPoints:
@@ -136,7 +133,7 @@ def select_surface(ctx: InspectionContext, pose: np.ndarray, p: SurfaceParams, c
     return _assemble(out, "surface")
 
 
-def _run(select, robust_attr: str):
+def _run(select):
     def run(ctx: InspectionContext, p) -> InspectionContext:
         from inspector.kernels.registration import refine_on_points
 
@@ -164,11 +161,11 @@ def _run(select, robust_attr: str):
             for _ in range(2):
                 offset = float(np.median(ref.signed_distance(sel.points, pose)))
                 target = sel.points - offset * ref.surface_normals(sel.points, pose)
-                refined = refine_on_points(target, ref.vertices, ref.faces, pose, robust_mm=getattr(p, robust_attr))
+                refined = refine_on_points(target, ref.vertices, ref.faces, pose, robust_mm=p.refine_robust_mm)
                 pose = refined.pose
-                if abs(offset) < 0.5 * getattr(p, robust_attr):
+                if abs(offset) < 0.5 * p.refine_robust_mm:
                     break
-            alignment = type(alignment)(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")
+            alignment = Alignment(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")
             sel = select(ctx, alignment.pose, p, cache)
         return ctx.evolve(bcps=sel, alignment=alignment)
 
@@ -180,7 +177,7 @@ def inspector_register_stages(registry: StageRegistry) -> None:
     registry.add(
         StageSpec(
             name="bcps.ray",
-            run=_run(select_rays, "refine_robust_mm"),
+            run=_run(select_rays),
             params=RayParams,
             requires=("segment", "carve", "align"),
             doc="BCPS on the exact rays through sub-pixel contour points (image-based visual hull), signed argmin",
@@ -189,7 +186,7 @@ def inspector_register_stages(registry: StageRegistry) -> None:
     registry.add(
         StageSpec(
             name="bcps.surface",
-            run=_run(select_surface, "refine_robust_mm"),
+            run=_run(select_surface),
             params=SurfaceParams,
             requires=("segment", "carve", "align"),
             doc="BCPS on the reconstruction's surface points falling on contour pixels (the paper's method)",

@@ -104,7 +104,7 @@ def test_bcps_surface_method_runs_and_is_signed_argmin(small):
 
     ctx = run_carve(_segment(small), CarveParams(voxel_mm=0.4))
     ctx = run_align(ctx.evolve(reference=Reference.load("builtin:cube30")), AlignParams())
-    out = _run(select_surface, "refine_robust_mm")(ctx, SurfaceParams(refine_pose=False))
+    out = _run(select_surface)(ctx, SurfaceParams(refine_pose=False))
     b = out.bcps
     assert b.method == "surface" and len(b.points) > 100
     sd = ctx.reference.signed_distance(ctx.reconstruction.points, ctx.alignment.pose)
