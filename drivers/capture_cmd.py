@@ -108,27 +108,9 @@ def _err(msg: str) -> None:
 
 
 def _write(out: Path, cap: Any) -> Path:
-    from inspector_drivers.replay.folder import write_capture
+    from inspector_drivers.replay.folder import save_capture
 
-    truth_mesh = truth_info = None
-    if cap.truth is not None:
-        truth_info = dict(cap.truth.info)
-        arrays = cap.truth.mesh_arrays()
-        if arrays is not None:
-            import trimesh
-
-            truth_mesh = trimesh.Trimesh(arrays[0], arrays[1], process=False)
-    meta = {k: v for k, v in dict(cap.metadata).items() if k != "polarity"}
-    return write_capture(
-        out / cap.name,
-        cap.rig,
-        cap.images,
-        backgrounds=dict(cap.backgrounds) or None,
-        metadata=meta,
-        polarity=cap.polarity,
-        truth_mesh=truth_mesh,
-        truth_info=truth_info,
-    )
+    return save_capture(cap, out / cap.name)
 
 
 def run(args: argparse.Namespace, pm: Any = None) -> int:

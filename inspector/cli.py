@@ -119,7 +119,7 @@ def _add_param_options(parser: argparse.ArgumentParser, cls: type, skip: set[str
 
 def _simulate(args: argparse.Namespace) -> int:
     from inspector.params import build_params, describe_params
-    from inspector_drivers.replay.folder import write_capture
+    from inspector_drivers.replay.folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
     table = {d["name"]: getattr(args, d["name"]) for d in describe_params(SimParams) if getattr(args, d["name"], None) is not None}
@@ -131,20 +131,7 @@ def _simulate(args: argparse.Namespace) -> int:
     out = Path(args.out)
     rig = sim_rig(p)
     for i in range(p.count):
-        cap = simulate(p, i, rig)
-        import trimesh
-
-        v, f = cap.truth.mesh_arrays()
-        folder = write_capture(
-            out / cap.name,
-            rig,
-            cap.images,
-            metadata=dict(cap.metadata),
-            polarity=cap.polarity,
-            truth_mesh=trimesh.Trimesh(v, f, process=False),
-            truth_info=dict(cap.truth.info),
-            overwrite=True,
-        )
+        folder = save_capture(cap := simulate(p, i, rig), out / cap.name, overwrite=True)
         print(f"[{i + 1}/{p.count}] wrote {folder}", flush=True)
     return EXIT_OK
 
@@ -154,10 +141,8 @@ def _demo(args: argparse.Namespace) -> int:
     """Simulate a good and a notched cube, inspect both with recipes/demo.toml."""
     from inspector.outputs import read_ply
     from inspector.params import build_params
-    from inspector_drivers.replay.folder import write_capture
+    from inspector_drivers.replay.folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
-
-    import trimesh
 
     out = Path(args.out)
     cap_dir = out / "captures"
@@ -170,12 +155,7 @@ def _demo(args: argparse.Namespace) -> int:
     for name, table in cases:
         p = build_params(SimParams, table, "demo")
         rig = rig or sim_rig(p)
-        cap = simulate(p, 0, rig, name=name)
-        v, f = cap.truth.mesh_arrays()
-        write_capture(
-            cap_dir / name, rig, cap.images, metadata=dict(cap.metadata), polarity=cap.polarity,
-            truth_mesh=trimesh.Trimesh(v, f, process=False), truth_info=dict(cap.truth.info), overwrite=True,
-        )
+        save_capture(simulate(p, 0, rig, name=name), cap_dir / name, overwrite=True)
         print(f"  {name}: {'1.5 mm notch removed on an edge' if 'bumps' in table else 'as the reference'}")
     recipe = str(_recipes_dir() / "demo.toml")
     print(f"Inspecting with {recipe} ...", flush=True)

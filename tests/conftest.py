@@ -25,20 +25,11 @@ def recipes_dir() -> Path:
 
 
 def _simulate_to(folder: Path, **params):
-    import trimesh
-
     from inspector.params import build_params
-    from inspector_drivers.replay.folder import write_capture
+    from inspector_drivers.replay.folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, simulate
 
-    p = build_params(SimParams, params, "test")
-    cap = simulate(p, 0, name=folder.name)
-    v, f = cap.truth.mesh_arrays()
-    write_capture(
-        folder, cap.rig, cap.images, metadata=dict(cap.metadata), polarity=cap.polarity,
-        truth_mesh=trimesh.Trimesh(v, f, process=False), truth_info=dict(cap.truth.info), overwrite=True,
-    )
-    return folder
+    return save_capture(simulate(build_params(SimParams, params, "test"), 0, name=folder.name), folder, overwrite=True)
 
 
 @pytest.fixture(scope="session")

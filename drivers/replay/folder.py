@@ -77,6 +77,7 @@ __all__ = [
     "is_capture_folder",
     "to_rgb_order",
     "decode_image",
+    "save_capture",
 ]
 
 RIG_FILE = "rig.json"
@@ -652,3 +653,28 @@ def to_rgb_order(img: np.ndarray, label: str, error: type[Exception] = CaptureEr
         else:
             raise error(f"{label}: unsupported number of channels {c}")
     return np.ascontiguousarray(img)
+
+
+def save_capture(capture: Capture, folder: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write an in-memory :class:`Capture` (from any driver) as a CONTRACT capture folder,
+    with its backgrounds, metadata, polarity and, when it has one, its ``truth/``."""
+    truth_mesh = truth_info = None
+    if capture.truth is not None:
+        truth_info = dict(capture.truth.info)
+        arrays = capture.truth.mesh_arrays()
+        if arrays is not None:
+            import trimesh
+
+            truth_mesh = trimesh.Trimesh(arrays[0], arrays[1], process=False)
+    meta = {k: v for k, v in dict(capture.metadata).items() if k != "polarity"}
+    return write_capture(
+        folder,
+        capture.rig,
+        capture.images,
+        backgrounds=dict(capture.backgrounds) or None,
+        metadata=meta,
+        polarity=capture.polarity,
+        truth_mesh=truth_mesh,
+        truth_info=truth_info,
+        overwrite=overwrite,
+    )
