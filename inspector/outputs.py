@@ -102,7 +102,7 @@ def read_ply(path: Path) -> dict[str, np.ndarray]:
     return {name: np.asarray(v[name]) for name in v.dtype.names}
 
 
-def write_result(result: InspectionResult, outdir: Path, *, reference: Any = None, trace: str | None = None) -> Path:
+def write_result(result: InspectionResult, outdir: Path, *, trace: str | None = None) -> Path:
     """Write one capture's result folder and return it."""
     folder = Path(outdir) / result.capture
     folder.mkdir(parents=True, exist_ok=True)

@@ -67,7 +67,6 @@ def inspect_capture(
     reference: Reference | None,
     pm: Any,
     *,
-    on_stage: Callable[[str], None] | None = None,
     load_s: float | None = None,
 ) -> Outcome:
     """Run every stage of ``recipe`` on ``capture``.
@@ -83,8 +82,6 @@ def inspect_capture(
     # "total" includes the time spent reading the capture, when known.
     t_start = time.perf_counter() - (load_s or 0.0)
     for step in recipe.steps:
-        if on_stage is not None:
-            on_stage(step.name)
         pm.before_stage(ctx, step.spec, step.name)
         t0 = time.perf_counter()
         try:
@@ -161,7 +158,7 @@ def run_batch(
             outcome = inspect_capture(capture, recipe, reference, pm, load_s=time.perf_counter() - t0)
         folder = None
         if outdir is not None:
-            folder = outputs.write_result(outcome.result, Path(outdir), reference=reference, trace=outcome.trace)
+            folder = outputs.write_result(outcome.result, Path(outdir), trace=outcome.trace)
         pm.on_result(outcome.result, folder)
         if progress is not None:
             progress(outputs.one_line(outcome.result))

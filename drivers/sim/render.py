@@ -265,7 +265,6 @@ def render_camera(
     if reg is None:
         return out
     c0, r0, c1, r1 = reg
-    h, w = r1 - r0, c1 - c0
     norm = _Normaliser(cam, c0, r0, c1, r1)
     caster = _Caster(scene, cam)
 
