@@ -1,7 +1,14 @@
-"""Result outputs (CONTRACT): ``result.json``, ``bcps_points.ply``, ``reconstruction.ply``.
+"""Result outputs (CONTRACT): ``result.json``, ``bcps_points.ply``, ``reconstruction.ply``
+and, when the reconstruction has faces, ``reconstruction_mesh.ply``.
 
 One folder per capture, ``OUTDIR/<capture name>/``. Files are written to a temporary name
 and renamed, so a reader never sees half a file.
+
+The PLY files are binary little-endian, with the element and property names and types
+that plyfile writes (``element vertex`` then ``element face`` with ``property list uchar
+int vertex_indices``). They are written directly, one header and one numpy structured
+array per element (plyfile writes list properties row by row, far slower); any PLY reader
+(plyfile, Open3D, trimesh) reads them.
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ import numpy as np
 
 from inspector.model import InspectionResult
 
-__all__ = ["write_result", "result_to_json", "write_ply", "read_ply", "one_line"]
+__all__ = ["write_result", "result_to_json", "write_ply", "ply_chunks", "read_ply", "one_line"]
 
 BCPS_PLY = "bcps_points.ply"
 RECON_PLY = "reconstruction.ply"
@@ -61,10 +68,77 @@ def result_to_json(result: InspectionResult, *, with_points: bool) -> dict[str, 
     )
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+def _atomic_write(path: Path, *chunks: bytes | memoryview) -> None:
     tmp = path.with_name(path.name + ".part")
-    tmp.write_bytes(data)
+    with open(tmp, "wb") as f:
+        for chunk in chunks:
+            f.write(chunk)
     os.replace(tmp, path)
+
+
+#: numpy (kind, size) -> PLY type name (plyfile's names).
+_PLY_TYPES = {
+    ("b", 1): "uchar",
+    ("i", 1): "char",
+    ("u", 1): "uchar",
+    ("i", 2): "short",
+    ("u", 2): "ushort",
+    ("i", 4): "int",
+    ("u", 4): "uint",
+    ("f", 4): "float",
+    ("f", 8): "double",
+}
+
+
+def _ply_type(dtype: np.dtype, what: str) -> str:
+    try:
+        return _PLY_TYPES[(dtype.kind, dtype.itemsize)]
+    except KeyError:
+        raise ValueError(f"{what}: dtype {dtype} has no PLY type") from None
+
+
+def ply_chunks(columns: dict[str, np.ndarray], faces: np.ndarray | None = None) -> list[bytes | memoryview]:
+    """The bytes of a binary little-endian PLY file, as header + one buffer per element.
+
+    Parameters
+    ----------
+    columns : dict of name -> (N,) array
+        Vertex properties in this order; dtypes are kept (any PLY type: int8..uint32,
+        float32, float64, bool as uchar).
+    faces : (F, K) int, optional
+        Vertex indices (K <= 255, triangles: 3), written as ``property list uchar int
+        vertex_indices`` (int32).
+
+    Returns
+    -------
+    list of bytes-like
+        Concatenated, the file; byte-identical to what plyfile writes for the same data.
+    """
+    cols = {str(k): np.asarray(v) for k, v in columns.items()}
+    for k in cols:
+        if not k or not k.isascii() or any(c.isspace() for c in k):
+            raise ValueError(f"column {k!r}: not a PLY property name")
+    n = len(next(iter(cols.values())))
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    header += [f"property {_ply_type(v.dtype, f'column {k!r}')} {k}" for k, v in cols.items()]
+    vert = np.empty(n, dtype=[(k, v.dtype.newbyteorder("<")) for k, v in cols.items()])
+    for k, v in cols.items():
+        vert[k] = v
+    out: list[bytes | memoryview] = [b"", memoryview(vert).cast("B")]
+    if faces is not None:
+        f = np.asarray(faces)
+        if f.size == 0:
+            f = f.reshape(0, 3)
+        if f.ndim != 2 or not 0 < f.shape[1] < 256:
+            raise ValueError(f"faces: shape {f.shape}, expected (F, K) with 0 < K < 256")
+        k = f.shape[1]
+        tri = np.empty(len(f), dtype=[("n", "u1"), ("vertex_indices", "<i4", (k,))])
+        tri["n"] = k
+        tri["vertex_indices"] = f
+        header += [f"element face {len(f)}", "property list uchar int vertex_indices"]
+        out.append(memoryview(tri).cast("B"))
+    out[0] = ("\n".join(header + ["end_header"]) + "\n").encode("ascii")
+    return out
 
 
 def write_ply(path: Path, columns: dict[str, np.ndarray], faces: np.ndarray | None = None) -> None:
@@ -76,22 +150,7 @@ def write_ply(path: Path, columns: dict[str, np.ndarray], faces: np.ndarray | No
         ``x``, ``y``, ``z`` first; dtypes are kept (float32 recommended).
     faces : (F, 3) int, optional
     """
-    import io
-
-    from plyfile import PlyData, PlyElement
-
-    n = len(next(iter(columns.values())))
-    vert = np.empty(n, dtype=[(k, np.asarray(v).dtype.str) for k, v in columns.items()])
-    for k, v in columns.items():
-        vert[k] = v
-    elements = [PlyElement.describe(vert, "vertex")]
-    if faces is not None:
-        f = np.empty(len(faces), dtype=[("vertex_indices", "i4", (3,))])
-        f["vertex_indices"] = faces
-        elements.append(PlyElement.describe(f, "face"))
-    buf = io.BytesIO()
-    PlyData(elements, text=False).write(buf)
-    _atomic_write(path, buf.getvalue())
+    _atomic_write(path, *ply_chunks(columns, faces))
 
 
 def read_ply(path: Path) -> dict[str, np.ndarray]:

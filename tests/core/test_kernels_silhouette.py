@@ -108,3 +108,269 @@ def test_area_refinement_is_exact_on_straight_edges(angle_deg):
     assert keep.sum() > 20
     assert err_area.max() < 0.01, err_area.max()  # the test image itself is 32x32 supersampled
     assert err_area.mean() <= err_lin[(lin[:, 0] > 8) & (lin[:, 0] < w - 8)].mean() + 1e-9
+
+
+# --------------------------------------------------------------------------- fast paths
+# Each fast path (8-bit tables, crop, point-wise gradient, components on a box) must give
+# exactly what the plain whole-image float computation gives.
+
+
+def noisy_disc_u8(h=90, w=110, seed=0, impulses=0.02):
+    rng = np.random.default_rng(seed)
+    cov = disc_coverage(h, w, 52.3, 44.6, 27.4, ss=8)
+    grey = 200.0 - 160.0 * cov + rng.normal(0, 3.0, cov.shape)
+    hit = rng.random(cov.shape) < impulses
+    grey[hit] = rng.choice([0.0, 255.0], hit.sum())
+    return np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("mode", ["off", "impulse", "full"])
+@pytest.mark.parametrize("threshold", [1.0, 20.5, 60.0, 254.9, 300.0])
+def test_median_denoise_u8_equals_float(mode, threshold):
+    g = noisy_disc_u8()
+    got = sk.median_denoise(g, mode, threshold)
+    want = sk.median_denoise(g.astype(np.float32), mode, threshold)
+    assert got.dtype == np.uint8 and np.array_equal(got.astype(np.float32), want)
+
+
+@pytest.mark.parametrize("polarity", ["dark-object", "bright-object"])
+def test_u8_tables_equal_the_float_signal(polarity):
+    g = noisy_disc_u8(seed=1)
+    counts = sk.histogram_u8(g)
+    assert np.array_equal(counts, np.bincount(g.ravel(), minlength=256))
+    table = sk.object_signal(np.arange(256, dtype=np.float32), polarity)
+    signal = sk.object_signal(g.astype(np.float32), polarity)
+    assert np.array_equal(table[g], signal)
+    level = sk.otsu_level_from_histogram(table, counts)
+    assert level == sk.otsu_level(signal)
+    for lv in (level, 0.0, 37.5, 255.0, 300.0):
+        assert sk.levels_from_histogram(table, counts, lv) == sk.coverage_levels(signal, lv)
+    _, bg, fg = sk.coverage(signal, level)
+    assert (bg, fg) == sk.levels_from_histogram(table, counts, level)
+    # Even pixel counts (the median is the mean of the two middle values) and odd ones.
+    vals = np.array([200.0, 3.0, 7.0, 7.5, 150.0], np.float32)  # any order
+    for c in ([2, 3, 3, 0, 2], [3, 3, 4, 0, 2], [1, 1, 0, 0, 0], [0, 0, 0, 0, 5], [7, 2, 5, 1, 7]):
+        c = np.array(c, np.int64)
+        assert sk.levels_from_histogram(vals, c, 100.0) == sk.coverage_levels(np.repeat(vals, c), 100.0)
+    assert sk.levels_from_histogram(vals, np.array([2, 3, 3, 0, 2]), 100.0) == (5.0, 175.0)
+
+
+def test_otsu_from_histogram_equals_opencv():
+    """OpenCV's Otsu replayed on the histogram: the same threshold, ties included."""
+    import cv2
+
+    rng = np.random.default_rng(8)
+    for t in range(600):
+        h, w = rng.integers(1, 60, 2)
+        kind = t % 5
+        if kind == 0:
+            img = rng.integers(0, 256, (h, w))
+        elif kind in (1, 2):  # two or three levels: many equal between-class variances
+            img = rng.choice(rng.integers(0, 256, kind + 1), (h, w))
+        elif kind == 3:
+            img = np.clip(rng.normal(rng.integers(0, 256), rng.uniform(0.1, 40), (h, w)), 0, 255)
+        else:
+            img = np.full((h, w), rng.integers(0, 256))
+        img = img.astype(np.uint8)
+        want, _ = cv2.threshold(img, 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        assert sk._otsu_threshold(np.bincount(img.ravel(), minlength=256)) == want
+    img = noisy_disc_u8(seed=9)
+    table = sk.object_signal(np.arange(256, dtype=np.float32), "dark-object")
+    assert sk.otsu_level_from_histogram(table, sk.histogram_u8(img)) == sk.otsu_level(table[img])
+    flat = np.full((5, 5), 77, np.uint8)
+    assert sk.otsu_level_from_histogram(table, sk.histogram_u8(flat)) == sk.otsu_level(table[flat]) == 178.0
+
+
+def test_mask_from_table_runs_and_lookups():
+    g = noisy_disc_u8(seed=2)
+    tables = [np.arange(256) <= 97, np.arange(256) >= 131, np.zeros(256, bool), np.ones(256, bool), (np.arange(256) % 3) == 0]
+    for t in tables:
+        got = sk.mask_from_table(g, t)
+        assert got.dtype == np.uint8 and np.array_equal(got, t[g].astype(np.uint8))
+
+
+def test_edge_pixel_count_equals_the_rolled_formula():
+    rng = np.random.default_rng(3)
+    for m in [
+        rng.random((40, 50)) < 0.3,  # everywhere, touching every border (wrap-round)
+        np.pad(rng.random((10, 12)) < 0.5, ((7, 9), (5, 4))),  # inside: counted on its box
+        np.zeros((20, 20), bool),
+        np.ones((20, 20), bool),
+    ]:
+        want = np.count_nonzero(m ^ np.roll(m, 1, axis=0) | m ^ np.roll(m, 1, axis=1))
+        assert sk.edge_pixel_count(m) == want
+        assert sk.edge_pixel_count(m.view(np.uint8)) == want
+
+
+def _labelled_reference(m, min_area):
+    import cv2
+
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_area
+    return keep[labels], m & ~keep[labels]
+
+
+@pytest.mark.parametrize("shape", [(60, 70), (700, 600)])  # 16-bit and 32-bit labels
+def test_kept_components_equal_whole_image_labelling(shape):
+    rng = np.random.default_rng(4)
+    m = np.zeros(shape, bool)
+    m[10:30, 12:40] = True
+    m[5:8, 50:53] = True  # 9 px: dropped with min_area 10
+    m[rng.integers(0, shape[0], 40), rng.integers(0, shape[1], 40)] = True
+    if shape[0] > 100:
+        m[100:600:2, 100:500:2] = True  # isolated pixels: ~50,000 components
+    comps = sk.kept_components(m, 10)
+    want, removed = _labelled_reference(m, 10)
+    assert np.array_equal(comps.mask, want) and np.array_equal(comps.removed, removed)
+    ys, xs = np.nonzero(want)
+    assert comps.box == (ys.min(), ys.max() + 1, xs.min(), xs.max() + 1)
+    assert np.array_equal(sk.largest_components(m, 10), want)
+    # Nothing dropped: no removed image; nothing kept: no box.
+    clean = sk.kept_components(want, 10)
+    assert clean.removed is None and np.array_equal(clean.mask, want)
+    none = sk.kept_components(m, 10**7)
+    assert none.box is None and not none.mask.any()
+    empty = sk.kept_components(np.zeros((5, 5), bool), 1)
+    assert empty.box is None and empty.removed is None and not empty.mask.any()
+
+
+def test_grow_box_clips_to_the_image():
+    assert sk.grow_box((2, 10, 5, 20), (30, 40), 4) == (0, 14, 1, 24)
+    assert sk.grow_box((20, 30, 30, 40), (30, 40), 4) == (16, 30, 26, 40)
+
+
+def _refine_reference(uv, raw, half_window=2):
+    """The whole-image numpy implementation that the compiled crop one replaces."""
+    h, w = raw.shape
+    gy, gx = np.gradient(np.clip(raw, 0.0, 1.0))
+    gxs = sk.sample_bilinear(gx, uv[:, 0], uv[:, 1])
+    gys = sk.sample_bilinear(gy, uv[:, 0], uv[:, 1])
+    on_row = np.abs(uv[:, 1] - np.rint(uv[:, 1])) < 1e-9
+    on_col = np.abs(uv[:, 0] - np.rint(uv[:, 0])) < 1e-9
+    steep = np.abs(gxs) >= np.abs(gys)
+    out = []
+    offs = np.arange(-half_window, half_window + 1)
+    for along_u, keep in ((True, steep & on_row), (False, ~steep & on_col)):
+        pts = uv[keep]
+        if len(pts) == 0:
+            continue
+        g = gxs[keep] if along_u else gys[keep]
+        line = np.rint(pts[:, 1] if along_u else pts[:, 0]).astype(np.intp)
+        pos = pts[:, 0] if along_u else pts[:, 1]
+        centre = np.rint(pos).astype(np.intp)
+        idx = centre[:, None] + offs[None, :]
+        n = w if along_u else h
+        inside_img = (idx.min(axis=1) >= 0) & (idx.max(axis=1) < n)
+        idx = np.clip(idx, 0, n - 1)
+        vals = raw[line[:, None], idx] if along_u else raw[idx, line[:, None]]
+        cl = np.clip(vals, 0.0, 1.0)
+        obj_low = g < 0
+        first = np.where(obj_low, cl[:, 0], cl[:, -1])
+        last = np.where(obj_low, cl[:, -1], cl[:, 0])
+        d = np.diff(cl, axis=1) * np.where(obj_low, 1.0, -1.0)[:, None]
+        clean = inside_img & (first > 0.85) & (last < 0.15) & np.all(d < 0.1, axis=1)
+        total = vals.sum(axis=1)
+        edge = np.where(obj_low, centre - half_window - 0.5 + total, centre + half_window + 0.5 - total)
+        edge = np.where(clean, edge, pos)
+        out.append(np.stack([edge, line.astype(float)], axis=1) if along_u else np.stack([line.astype(float), edge], axis=1))
+    return np.concatenate(out) if out else np.zeros((0, 2))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_refinement_equals_the_numpy_reference(dtype):
+    """Random coverage and points anywhere in the image (on rows, columns, the border):
+    the compiled refinement gives the numpy implementation's points exactly."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        h, w = rng.integers(2, 40, 2)
+        raw = (rng.random((h, w)) * 1.4 - 0.2).astype(dtype)
+        raw[rng.random((h, w)) < 0.3] = rng.choice([0.0, 1.0, 0.85, 0.15, -0.0])
+        n = 300
+        u = rng.uniform(0, w - 1, n)
+        v = rng.uniform(0, h - 1, n)
+        u[::3] = np.rint(u[::3])  # on columns
+        v[1::3] = np.rint(v[1::3])  # on rows
+        u[2::9], v[5::9] = 0.0, h - 1.0  # on the border
+        uv = np.stack([u, v], axis=1)
+        for hw in (1, 2, 3):
+            assert np.array_equal(sk.refine_contour_area(uv, raw, half_window=hw), _refine_reference(uv, raw, hw))
+
+
+def _polygon_coverage(h, w, ss=8):
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    off = (np.arange(ss) + 0.5) / ss - 0.5
+    cov = np.zeros((h, w))
+    for dy in off:
+        for dx in off:
+            x, y = xx + dx, yy + dy
+            cov += (0.8 * x + 0.3 * y < 70.3) & (-0.2 * x + 0.9 * y < 44.1) & (x + y > 25.7) & (y > 6.2)
+    return (cov / ss**2).astype(np.float32)
+
+
+@pytest.mark.parametrize("where", ["inside", "left-border", "corner"])
+def test_contour_and_refinement_on_a_crop_equal_the_whole_image(where):
+    soft = _polygon_coverage(70, 90)
+    if where == "left-border":
+        soft = np.ascontiguousarray(soft[:, 12:])
+    elif where == "corner":
+        soft = np.ascontiguousarray(soft[5:, 12:])
+    rng = np.random.default_rng(6)
+    raw = soft + rng.normal(0, 0.02, soft.shape).astype(np.float32)
+    mask = soft >= 0.5
+    full = sk.subpixel_contour(soft, mask)
+    ref_full = sk.refine_contour_area(full, raw)
+    ys, xs = np.nonzero(mask)
+    y0, y1, x0, x1 = sk.grow_box((ys.min(), ys.max() + 1, xs.min(), xs.max() + 1), mask.shape, 4)
+    crop = dict(origin=(x0, y0), image_shape=mask.shape)
+    uv = sk.subpixel_contour(soft[y0:y1, x0:x1], mask[y0:y1, x0:x1], **crop)
+    assert len(full) > 50 and np.array_equal(uv, full)  # identical floats, same order
+    ref = sk.refine_contour_area(uv, raw[y0:y1, x0:x1], **crop)
+    assert np.array_equal(ref, ref_full)
+    # The numpy whole-image implementation gives the same refinement.
+    assert np.array_equal(ref, _refine_reference(full, raw))
+
+
+def test_crop_arguments_are_checked():
+    soft = _polygon_coverage(70, 90)
+    mask = soft >= 0.5
+    uv = sk.subpixel_contour(soft, mask)
+    with pytest.raises(ValueError, match="image_shape"):
+        sk.subpixel_contour(soft[5:, 5:], mask[5:, 5:], origin=(5, 5))
+    with pytest.raises(ValueError, match="crop too small"):
+        sk.refine_contour_area(uv, soft[20:40, 20:40], origin=(20, 20), image_shape=soft.shape)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "halves", "binary", "quarters", "float32", "nan", "ints"])
+def test_marching_squares_equals_skimage_find_contours(kind):
+    """Same contours, point for point and in the same order, as skimage's (the reference)."""
+    from skimage.measure import find_contours
+
+    rng = np.random.default_rng(abs(hash(kind)) % 1000)
+    for _ in range(40):
+        h, w = rng.integers(2, 30, 2)
+        a = rng.random((h, w))
+        if kind == "halves":
+            a = rng.integers(0, 3, (h, w)) / 2.0  # pixels exactly at the level, saddles
+        elif kind == "binary":
+            a = (a > 0.5).astype(float)
+        elif kind == "quarters":
+            a = np.round(a * 4) / 4
+        elif kind == "float32":
+            a = a.astype(np.float32)
+        elif kind == "nan":
+            a[rng.random((h, w)) < 0.1] = np.nan
+        elif kind == "ints":
+            a = rng.integers(0, 2, (h, w))
+        want = find_contours(a, 0.5)
+        got = sk.marching_squares(a, 0.5)
+        assert len(got) == len(want)
+        for g, x in zip(got, want):
+            assert g.dtype == np.float64 and np.array_equal(g, x)
+    # A real silhouette: one closed contour of ~300 points.
+    cov = disc_coverage(120, 130, 60.3, 58.7, 40.25, ss=4).astype(np.float32)
+    (want,) = find_contours(cov, 0.5)
+    (got,) = sk.marching_squares(cov, 0.5)
+    assert len(got) > 250 and np.array_equal(got, want)
+    with pytest.raises(ValueError, match="2x2"):
+        sk.marching_squares(np.zeros((1, 5)), 0.5)

@@ -546,3 +546,25 @@ def test_capture_name_is_the_folder_name_as_given(capture_dir: Path, tmp_path: P
     assert read_capture(link).name == "line3-0042"  # not the symlink's target
     monkeypatch.chdir(capture_dir)
     assert read_capture(".").name == "cap-001"
+
+
+def test_decode_errors_name_the_first_bad_file_in_rig_order(capture_dir: Path) -> None:
+    """Images are decoded in a thread pool; the error is still the first bad file in rig
+    order (images before backgrounds), whichever decode fails first."""
+    good = {rel: (capture_dir / rel).read_bytes() for rel in ("images/cam01.png", "images/cam03.png")}
+    _corrupt("images/cam03.png")(capture_dir)
+    _truncate("background/cam00.png")(capture_dir)
+    _truncate("images/cam01.png")(capture_dir)
+    expected = [
+        "images/cam01.png: truncated PNG (no IEND chunk)",
+        "images/cam03.png: unreadable PNG (corrupt data)",
+        "background/cam00.png: truncated PNG (no IEND chunk)",
+    ]
+    for i, msg in enumerate(expected):
+        for _ in range(3):  # the pool's timing varies; the message does not
+            with pytest.raises(CaptureError) as info:
+                read_capture(capture_dir)
+            assert str(info.value) == msg and info.value.__cause__ is None
+        if i < 2:
+            rel = msg.split(":")[0]
+            (capture_dir / rel).write_bytes(good[rel])

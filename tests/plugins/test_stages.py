@@ -80,6 +80,143 @@ def test_border_touching_silhouette_is_flagged_and_does_not_carve_the_part(small
     assert np.all(lo <= flo + 1.0) and np.all(hi >= fhi - 1.0)
 
 
+def _impulse_and_binary_variants(small):
+    """The small capture as is, with salt-and-pepper noise, and hard-edged (binary)."""
+    rng = np.random.default_rng(7)
+    noisy, binary = {}, {}
+    for name, img in small.images.items():
+        a = img.copy()
+        hit = rng.random(a.shape) < 0.01
+        a[hit] = rng.choice(np.array([0, 255], np.uint8), hit.sum())
+        noisy[name] = a
+        binary[name] = np.where(img < 120, 40, 200).astype(np.uint8)
+    return {"plain": small, "impulse": Capture(small.name, small.rig, noisy), "binary": Capture(small.name, small.rig, binary)}
+
+
+def _same_silhouettes(a, b):
+    for x, y in zip(a.silhouettes, b.silhouettes):
+        assert np.array_equal(x.mask, y.mask) and np.array_equal(x.soft, y.soft)
+        assert np.array_equal(x.contour, y.contour) and x.touches_border == y.touches_border
+
+
+@pytest.mark.parametrize(
+    "params", [{}, {"median": "full"}, {"median": "off", "min_area_px": 1}, {"threshold": "fixed", "level": 90.0}, {"smooth_px": 1.5}, {"subpixel": "linear"}]
+)
+def test_segment_8bit_tables_equal_the_float_path(small, monkeypatch, params):
+    """8-bit grey images take uint8/table shortcuts: the silhouettes are the float path's, bit for bit."""
+    from inspector.kernels import silhouette as sk
+
+    for cap in _impulse_and_binary_variants(small).values():
+        fast = _segment(cap, **params)
+        with monkeypatch.context() as m:
+            m.setattr(sk, "grey_u8", lambda image: None)  # every image through to_grey (float32)
+            slow = _segment(cap, **params)
+        _same_silhouettes(fast, slow)
+
+
+def test_segment_on_a_crop_equals_the_whole_image(small, monkeypatch):
+    """Contouring on the crop around the kept components gives the whole image's points."""
+    import inspector_plugins.segment as seg
+
+    caps = _impulse_and_binary_variants(small)
+    # An object cut by the image border, too.
+    imgs = dict(small.images)
+    img = imgs["cam01"].copy()
+    cols = np.flatnonzero((img < 120).any(axis=0))
+    img[:, : (cols.min() + cols.max()) // 2] = 40
+    imgs["cam01"] = img
+    caps["border"] = Capture(small.name, small.rig, imgs)
+    for cap in caps.values():
+        cropped = _segment(cap)
+        with monkeypatch.context() as m:
+            m.setattr(seg, "CROP_MARGIN", 10**6)  # the crop is the whole image
+            whole = _segment(cap)
+        _same_silhouettes(cropped, whole)
+
+
+def test_mesh_outputs_read_back_with_plyfile_and_open3d(small, tmp_path):
+    """The PLY files (CONTRACT) are what plyfile writes, byte for byte, and Open3D reads them."""
+    import io
+
+    from plyfile import PlyData, PlyElement
+
+    from inspector.model import InspectionResult
+    from inspector.outputs import RECON_MESH_PLY, RECON_PLY, read_ply, write_result
+    from inspector_plugins.carve import CarveParams, run_carve
+
+    rec = run_carve(_segment(small), CarveParams(voxel_mm=1.0)).reconstruction
+    assert len(rec.faces) > 100
+    res = InspectionResult(capture="c", recipe="r", verdict="pass", error=None, timings_s={}, reconstruction=rec)
+    folder = write_result(res, tmp_path)
+
+    data = (folder / RECON_MESH_PLY).read_bytes()
+    mesh = PlyData.read(io.BytesIO(data))
+    assert [e.name for e in mesh.elements] == ["vertex", "face"]
+    assert [(p.name, p.val_dtype) for p in mesh["vertex"].properties] == [("x", "f4"), ("y", "f4"), ("z", "f4")]
+    (prop,) = mesh["face"].properties
+    assert (prop.name, prop.len_dtype, prop.val_dtype) == ("vertex_indices", "u1", "i4")
+    v = mesh["vertex"].data
+    assert np.array_equal(np.stack([v["x"], v["y"], v["z"]], axis=1), rec.vertices.astype(np.float32))
+    assert np.array_equal(np.stack(mesh["face"].data["vertex_indices"]), rec.faces)
+    # Byte for byte what plyfile itself writes for the same arrays.
+    vert = np.empty(len(rec.vertices), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4")])
+    for i, k in enumerate("xyz"):
+        vert[k] = rec.vertices[:, i]
+    face = np.empty(len(rec.faces), dtype=[("vertex_indices", "i4", (3,))])
+    face["vertex_indices"] = rec.faces
+    buf = io.BytesIO()
+    PlyData([PlyElement.describe(vert, "vertex"), PlyElement.describe(face, "face")], text=False).write(buf)
+    assert data == buf.getvalue()
+
+    cols = read_ply(folder / RECON_PLY)
+    assert list(cols) == ["x", "y", "z", "nx", "ny", "nz"]
+    assert np.array_equal(np.stack([cols[k] for k in ("nx", "ny", "nz")], axis=1), rec.normals.astype(np.float32))
+
+    o3d = pytest.importorskip("open3d")
+    m = o3d.io.read_triangle_mesh(str(folder / RECON_MESH_PLY))
+    assert np.array_equal(np.asarray(m.triangles), rec.faces)
+    assert np.allclose(np.asarray(m.vertices), rec.vertices.astype(np.float32))
+    pc = o3d.io.read_point_cloud(str(folder / RECON_PLY))
+    assert np.allclose(np.asarray(pc.points), rec.points.astype(np.float32))
+
+
+@pytest.mark.parametrize(
+    "dtypes",
+    [
+        {"x": np.float32, "flag": np.bool_, "c": np.int8, "u": np.uint8, "s": np.int16, "us": np.uint16, "i": np.int32, "ui": np.uint32, "d": np.float64},
+        {"x": ">f4", "camera": ">i2"},  # big-endian arrays are written little-endian
+    ],
+)
+@pytest.mark.parametrize("n", [0, 1, 257])
+def test_write_ply_equals_plyfile_for_every_type(tmp_path, dtypes, n):
+    import io
+
+    from plyfile import PlyData, PlyElement
+
+    from inspector.outputs import read_ply, write_ply
+
+    rng = np.random.default_rng(n)
+    cols = {k: (rng.random(n) * 100 - 20).astype(t) for k, t in dtypes.items()}
+    faces = rng.integers(0, max(n, 1), (2 * n, 3))
+    for f in (None, faces):
+        write_ply(tmp_path / "t.ply", cols, faces=f)
+        vert = np.empty(n, dtype=[(k, v.dtype.str) for k, v in cols.items()])
+        for k, v in cols.items():
+            vert[k] = v
+        elements = [PlyElement.describe(vert, "vertex")]
+        if f is not None:
+            fa = np.empty(len(f), dtype=[("vertex_indices", "i4", (3,))])
+            fa["vertex_indices"] = f
+            elements.append(PlyElement.describe(fa, "face"))
+        buf = io.BytesIO()
+        PlyData(elements, text=False).write(buf)
+        assert (tmp_path / "t.ply").read_bytes() == buf.getvalue()
+        back = read_ply(tmp_path / "t.ply")
+        assert list(back) == list(cols) and all(np.array_equal(back[k], cols[k]) for k in cols)
+    with pytest.raises(ValueError, match="column 'bad': dtype int64 has no PLY type"):
+        write_ply(tmp_path / "bad.ply", {"x": np.zeros(2, np.float32), "bad": np.zeros(2, np.int64)})
+
+
 def test_align_from_a_random_orientation(small):
     from inspector_plugins.align import AlignParams, run_align
     from inspector_plugins.carve import CarveParams, run_carve
