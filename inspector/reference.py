@@ -1,4 +1,9 @@
-"""The aligned CAD reference: its mesh and signed distances to it."""
+"""The aligned CAD reference: its mesh and signed distances to it.
+
+Distances and closest points come from :class:`~inspector.kernels.meshdist.MeshDistance`
+(exact, float64, built once per reference on first use); Open3D's raycasting scene answers
+only the queries outside the index's band.
+"""
 
 from __future__ import annotations
 
@@ -51,6 +56,27 @@ class Reference:
         )
         return scene
 
+    @cached_property
+    def distance(self) -> Any:
+        """Exact signed distance in the reference frame (:class:`~inspector.kernels.meshdist.MeshDistance`,
+        built on first use; Open3D answers the rare queries outside its band)."""
+        from inspector.kernels.meshdist import MeshDistance
+
+        return MeshDistance(self.vertices, self.faces, fallback=self._open3d_signed_distance,
+                            fallback_closest=self._open3d_closest)
+
+    def _open3d_closest(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        import open3d as o3d
+
+        ans = self._scene.compute_closest_points(o3d.core.Tensor(np.asarray(p, np.float32)))
+        return ans["points"].numpy().astype(float), ans["primitive_ids"].numpy().astype(np.int64)
+
+    def _open3d_signed_distance(self, p: np.ndarray) -> np.ndarray:
+        import open3d as o3d
+
+        d = self._scene.compute_signed_distance(o3d.core.Tensor(np.asarray(p, np.float32)), nsamples=1)
+        return d.numpy().astype(float)
+
     def signed_distance(self, points: np.ndarray, pose: np.ndarray | None = None) -> np.ndarray:
         """Signed distance of world points to the reference placed by ``pose``.
 
@@ -66,26 +92,28 @@ class Reference:
         (N,) float
             mm, negative inside the reference (CONTRACT sign).
         """
-        import open3d as o3d
-
         p = np.asarray(points, float).reshape(-1, 3)
         if pose is not None:
             R, t = pose[:3, :3], pose[:3, 3]
             p = (p - t) @ R  # world -> reference frame
         if len(p) == 0:
             return np.zeros(0)
-        d = self._scene.compute_signed_distance(o3d.core.Tensor(p.astype(np.float32)), nsamples=1)
-        return d.numpy().astype(float)
+        return self.distance(p)
 
     def surface_normals(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """Outward unit normals (world frame) of the reference surface at the points'
         closest points; (N, 3) world mm -> (N, 3)."""
-        import open3d as o3d
-
         p = self.to_reference_frame(points, pose)
-        ans = self._scene.compute_closest_points(o3d.core.Tensor(p.astype(np.float32)))
-        n = ans["primitive_normals"].numpy().astype(float)
-        return n @ pose[:3, :3].T
+        _, tid = self.distance.closest(p)
+        return self.face_normals[tid] @ pose[:3, :3].T
+
+    @cached_property
+    def face_normals(self) -> np.ndarray:
+        """Unit normals (F, 3) of the triangles, reference frame."""
+        tri = self.vertices[self.faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        ln = np.linalg.norm(n, axis=1, keepdims=True)
+        return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
 
     def to_reference_frame(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """World points (N, 3) -> reference frame, using ``pose`` (reference -> world)."""

@@ -28,7 +28,8 @@ def run_align(ctx: InspectionContext, p: AlignParams) -> InspectionContext:
     recon = ctx.need("reconstruction", "align")
     ref = ctx.need("reference", "align")
     a = align_reference(
-        recon.points, recon.normals, ref.vertices, ref.faces, voxel_mm=p.voxel_mm, inlier_mm=p.inlier_mm, seed=p.seed
+        recon.points, recon.normals, ref.vertices, ref.faces, voxel_mm=p.voxel_mm, inlier_mm=p.inlier_mm, seed=p.seed,
+        index=ref.distance,
     )
     if a.fitness < p.min_fitness:
         raise StageError(

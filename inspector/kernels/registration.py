@@ -46,6 +46,8 @@ batching over candidates, which the raycasting scene provides directly.
 from __future__ import annotations
 
 import itertools
+from functools import cached_property
+from typing import Any
 
 import numpy as np
 import open3d as o3d
@@ -227,7 +229,8 @@ class _Reference:
     internal frame, (4, 4), the inverse of the internal pose.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, index: Any = None) -> None:
+        self.index = index  # MeshDistance of the reference (its own frame), or None
         self.centre = 0.5 * (vertices.min(axis=0) + vertices.max(axis=0))
         self.vertices = vertices - self.centre
         self.faces = faces
@@ -240,11 +243,15 @@ class _Reference:
             raise ValueError("reference mesh has zero surface area")
         self.face_normals = cross / np.where(dbl > 0, dbl, 1.0)[:, None]
         self.diag = float(np.linalg.norm(np.ptp(self.vertices, axis=0)))
+
+    @cached_property
+    def scene(self) -> o3d.t.geometry.RaycastingScene:
         mesh = o3d.t.geometry.TriangleMesh()
         mesh.vertex.positions = o3d.core.Tensor(self.vertices.astype(np.float32))
-        mesh.triangle.indices = o3d.core.Tensor(faces.astype(np.int32))
-        self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(mesh)
+        mesh.triangle.indices = o3d.core.Tensor(self.faces.astype(np.int32))
+        scene = o3d.t.geometry.RaycastingScene()
+        scene.add_triangles(mesh)
+        return scene
 
     def pose_from_w(self, W: np.ndarray) -> np.ndarray:
         """World -> internal transform -> reference -> world pose."""
@@ -265,12 +272,17 @@ class _Reference:
 
     def distance(self, q: np.ndarray) -> np.ndarray:
         """Unsigned distance of internal-frame points ``q`` (..., 3) to the surface, (...)."""
+        if self.index is not None:
+            return np.abs(self.index(q.reshape(-1, 3) + self.centre)).reshape(q.shape[:-1])
         flat = np.ascontiguousarray(q.reshape(-1, 3), dtype=np.float32)
         d = self.scene.compute_distance(o3d.core.Tensor(flat)).numpy()
         return d.astype(float).reshape(q.shape[:-1])
 
     def closest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points (..., 3) and the normals (..., 3) of their triangles."""
+        if self.index is not None:
+            c, ids = self.index.closest(q.reshape(-1, 3) + self.centre)
+            return (c - self.centre).reshape(q.shape), self.face_normals[ids].reshape(q.shape)
         flat = np.ascontiguousarray(q.reshape(-1, 3), dtype=np.float32)
         ans = self.scene.compute_closest_points(o3d.core.Tensor(flat))
         c = ans["points"].numpy().astype(float).reshape(q.shape)
@@ -553,6 +565,7 @@ def align_reference(
     voxel_mm: float = 1.0,
     inlier_mm: float = 1.0,
     seed: int = 0,
+    index: Any = None,
 ) -> Alignment:
     """Globally align the reference mesh onto a reconstruction.
 
@@ -583,6 +596,10 @@ def align_reference(
         no less than ``inlier_mm / 10``.
     seed : int, default 0
         Seed of the reference surface sampling and of the RANSAC hypothesis.
+    index : MeshDistance, optional
+        The reference's exact distance index (:class:`~inspector.kernels.meshdist.MeshDistance`
+        built on ``ref_vertices``, ``ref_faces``; e.g. ``Reference.distance``): closest
+        points come from it instead of a new Open3D scene.
 
     Returns
     -------
@@ -609,7 +626,7 @@ def align_reference(
     voxel_mm = _positive("voxel_mm", voxel_mm)
     inlier_mm = _positive("inlier_mm", inlier_mm)
 
-    ref = _Reference(verts, faces)
+    ref = _Reference(verts, faces, index)
     rng = np.random.default_rng(seed)
 
     # Coarse subsamples of the reconstruction and of the reference surface.
@@ -661,6 +678,7 @@ def refine_on_points(
     *,
     robust_mm: float = 0.3,
     iterations: int = 20,
+    index: Any = None,
 ) -> Alignment:
     """Robustly re-fit the reference pose on points that lie on its surface.
 
@@ -690,6 +708,10 @@ def refine_on_points(
     iterations : int, default 20
         Maximum Gauss-Newton iterations (stops earlier on convergence); 0 only
         evaluates ``pose``.
+    index : MeshDistance, optional
+        The reference's exact distance index (:class:`~inspector.kernels.meshdist.MeshDistance`
+        built on ``ref_vertices``, ``ref_faces``; e.g. ``Reference.distance``): closest
+        points come from it instead of a new Open3D scene.
 
     Returns
     -------
@@ -711,7 +733,7 @@ def refine_on_points(
     if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 0:
         raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
 
-    ref = _Reference(verts, faces)
+    ref = _Reference(verts, faces, index)
     W, dist, _ = _robust_fit(
         ref, pts, ref.w_from_pose(P), floor_mm=robust_mm, start_mm=np.inf, iterations=int(iterations),
         tol=1e-6 * ref.diag,

@@ -1,0 +1,78 @@
+"""Exact signed distance index against brute force and the winding number."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from trimesh.triangles import closest_point as closest_on_triangles
+
+from inspector.kernels.meshdist import MeshDistance
+from inspector.parts import load_reference
+
+
+def _winding(V: np.ndarray, F: np.ndarray, p: np.ndarray) -> float:
+    """Generalized winding number of a closed mesh at p (1 inside, 0 outside)."""
+    a, b, c = V[F[:, 0]] - p, V[F[:, 1]] - p, V[F[:, 2]] - p
+    la, lb, lc = (np.linalg.norm(x, axis=1) for x in (a, b, c))
+    num = np.einsum("ij,ij->i", a, np.cross(b, c))
+    den = la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", b, c) * la + np.einsum("ij,ij->i", c, a) * lb
+    return float(np.sum(2 * np.arctan2(num, den)) / (4 * np.pi))
+
+
+def _near_surface(mesh: trimesh.Trimesh, n: int, sigma: float, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    S, _ = trimesh.sample.sample_surface(mesh, n, seed=seed)
+    P = S + rng.normal(0.0, sigma, S.shape)
+    P[: n // 4] = S[: n // 4] + rng.normal(0.0, 1e-4, (n // 4, 3))  # on the surface, either side
+    return P
+
+
+@pytest.mark.parametrize("part", ["bracket", "sphere30", "gauge"])
+def test_exact_distance_and_sign(part):
+    mesh = load_reference(f"builtin:{part}", recentre=False)
+    V, F = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    md = MeshDistance(V, F)
+    P = _near_surface(mesh, 300, 0.6, seed=1)
+    d = md(P)
+    inband = ~np.isnan(d)
+    assert inband.mean() > 0.9
+    tri = V[F]
+    for p, di in zip(P[inband], d[inband]):
+        q = closest_on_triangles(tri, np.repeat(p[None], len(tri), axis=0))
+        brute = np.linalg.norm(q - p, axis=1).min()
+        assert abs(abs(di) - brute) < 1e-9
+        if brute > 1e-6:  # the sign of points on the surface is either
+            assert (di < 0) == (_winding(V, F, p) > 0.5)
+
+
+def test_band_fallback_and_closest():
+    mesh = load_reference("builtin:cube30", recentre=False)
+    V, F = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    md = MeshDistance(V, F, band_mm=1.0, cell_mm=0.5)
+    r = 0.5 * np.sqrt(3) / 2
+    P = np.array([[0.0, 0.0, 15.0 + (1.0 - r) * 0.99], [0.0, 0.0, 10.0], [0.0, 0.0, 40.0], [3.0, -2.0, -15.2]])
+    d = md(P)
+    assert d[0] == pytest.approx((1.0 - r) * 0.99) and d[3] == pytest.approx(0.2)
+    assert np.isnan(d[1]) and np.isnan(d[2])  # deep inside, outside the grid: not in the band
+    calls = []
+
+    def fallback(X):
+        calls.append(len(X))
+        return np.full(len(X), 7.0)
+
+    md.fallback = fallback
+    assert np.allclose(md(P)[[1, 2]], 7.0) and calls == [2]
+    q, tid = md.closest(P[[0, 3]])
+    assert np.allclose(q, [[0.0, 0.0, 15.0], [3.0, -2.0, -15.0]])
+    assert np.all(tid >= 0)
+    assert np.all(np.abs(np.cross(V[F[tid, 1]] - V[F[tid, 0]], V[F[tid, 2]] - V[F[tid, 0]])[:, :2]) < 1e-9)  # a z face
+    q, tid = md.closest(P[[1]])
+    assert tid[0] == -1 and np.isnan(q).all()
+
+
+def test_rejects_bad_meshes():
+    with pytest.raises(ValueError):
+        MeshDistance(np.zeros((3, 2)), np.array([[0, 1, 2]]))
+    with pytest.raises(ValueError):
+        MeshDistance(np.zeros((3, 3)), np.zeros((0, 3), int))
