@@ -82,13 +82,17 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
             # Only where the ray passes near the reconstruction (the hull is conservative).
             # A pose update can move a grazing ray's optimum far along it: every pass
             # searches the whole range.
-            ranges[i] = (origin, dirs, bk.ray_ranges(cam, sil.contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm)))
+            ranges[i] = (origin, dirs, bk.ray_ranges(
+                cam, sil.contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm),
+                compiled=cache.get("stack") is not None,
+            ))
         origin, dirs, (r0, r1) = ranges[i]
         sub = slice(None, None, stride)
         pts, dev, seg, ok = bk.select_on_rays(
             origin, dirs[sub], views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm,
             refine_levels=cache.get("refine_levels", p.refine_levels), tolerance_px=p.tolerance_px, accept_px=p.accept_px,
             violation_weight=p.violation_weight, t_range=(r0[sub], r1[sub]),
+            mesh=ref.distance if cache.get("stack") is not None else None, pose=pose,
         )
         out["points"].append(pts[ok])
         out["deviation"].append(dev[ok])
@@ -161,7 +165,9 @@ def _run(select):
             for _ in range(2):
                 offset = float(np.median(ref.signed_distance(sel.points, pose)))
                 target = sel.points - offset * ref.surface_normals(sel.points, pose)
-                refined = refine_on_points(target, ref.vertices, ref.faces, pose, robust_mm=p.refine_robust_mm)
+                refined = refine_on_points(
+                    target, ref.vertices, ref.faces, pose, robust_mm=p.refine_robust_mm, index=ref.distance
+                )
                 pose = refined.pose
                 if abs(offset) < 0.5 * p.refine_robust_mm:
                     break

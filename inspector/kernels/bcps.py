@@ -156,7 +156,8 @@ def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight, centre=None
 
 
 def ray_ranges(
-    camera: Camera, uv: np.ndarray, origin: np.ndarray, dirs: np.ndarray, points: np.ndarray, radius_mm: float
+    camera: Camera, uv: np.ndarray, origin: np.ndarray, dirs: np.ndarray, points: np.ndarray, radius_mm: float,
+    *, compiled: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Where each contour ray can meet the reconstruction: the depth span of the
     reconstruction's surface points projecting within about ``radius_mm`` of the ray (plus
@@ -172,6 +173,8 @@ def ray_ranges(
     points : (N, 3) float
         Reconstruction surface points, world mm.
     radius_mm : float
+    compiled : bool
+        Use the Numba kernel (:func:`inspector.kernels.bcps_jit.ray_ranges`, same result).
 
     Returns
     -------
@@ -191,6 +194,12 @@ def ray_ranges(
     if z.size == 0:
         return t0, t1
     rho = radius_mm * float(np.sqrt(camera.K[0, 0] * camera.K[1, 1])) / float(np.median(z))
+    # A ray point at depth z lies at t = z / cos(angle to the optical axis).
+    cos = dirs @ np.asarray(camera.R, float)[2]
+    if compiled:
+        from inspector.kernels import bcps_jit
+
+        return bcps_jit.ray_ranges(puv, z, uv, cos, rho, radius_mm)
     # Depth range of the reconstruction per image cell of rho px, widened to the 3x3
     # neighbouring cells: every point within rho px of a contour point is counted.
     cell = np.floor(puv / rho).astype(np.int64)
@@ -205,8 +214,6 @@ def ray_ranges(
     zmax = maximum_filter(zmax, size=3, mode="constant", cval=-np.inf)
     q = np.floor(uv / rho).astype(np.int64) - lo
     ok = (q[:, 0] >= 0) & (q[:, 0] < shape[1]) & (q[:, 1] >= 0) & (q[:, 1] < shape[0])
-    # A ray point at depth z lies at t = z / cos(angle to the optical axis).
-    cos = dirs @ np.asarray(camera.R, float)[2]
     t0[ok] = zmin[q[ok, 1], q[ok, 0]] / cos[ok]
     t1[ok] = zmax[q[ok, 1], q[ok, 0]] / cos[ok]
     return t0 - radius_mm, t1 + radius_mm
@@ -229,6 +236,8 @@ def select_on_rays(
     max_points: int = 1_000_000,
     stack: object | None = None,
     t_range: tuple[np.ndarray, np.ndarray] | None = None,
+    mesh: object | None = None,
+    pose: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """BCPS on exact rays (the ``ray`` method).
 
@@ -276,6 +285,12 @@ def select_on_rays(
     t_range : (t0, t1) of (M,) arrays, optional
         Where along each ray to look (e.g. :func:`ray_ranges`), intersected with
         ``bounds``; rays with an empty range have no candidate.
+    mesh, pose : MeshDistance and (4, 4) float, optional
+        The reference's distance index (:class:`~inspector.kernels.meshdist.MeshDistance`)
+        and its pose (reference -> world; ``sd_fn`` must be the same function). With
+        ``stack``, the compiled search of :mod:`inspector.kernels.bcps_jit` runs the whole
+        selection (same result); rays it flags (a distance outside the index's band)
+        take the numpy path with ``sd_fn``.
 
     Returns
     -------
@@ -312,6 +327,29 @@ def select_on_rays(
 
     lip = _lipschitz_px_per_mm(others, bounds)
     weight = violation_weight / lip  # mm per pixel of violation
+    if stack is not None and mesh is not None and pose is not None:
+        from inspector.kernels import bcps_jit
+
+        tb, vb, sb, seg, oob = bcps_jit.select_rays(
+            origin, dirs[hit], t0[hit], t1[hit], stack, skip, mesh, pose, step_mm=step_mm,
+            refine_levels=refine_levels, refine_samples=refine_samples, tolerance_px=tolerance_px,
+            accept_px=accept_px, weight=weight, lip=lip, bounds=bounds,
+        )
+        ok = ~oob & (vb <= accept_px) & np.isfinite(sb)
+        sel = hit[ok]
+        points[sel] = origin + tb[ok, None] * dirs[sel]
+        deviation[sel] = sb[ok]
+        valid[sel] = True
+        segment[hit[~oob]] = seg[~oob]
+        if oob.any():
+            rest = hit[oob]
+            p2, d2, s2, v2 = select_on_rays(
+                origin, dirs[rest], views, skip, sd_fn, bounds, step_mm=step_mm, refine_levels=refine_levels,
+                refine_samples=refine_samples, tolerance_px=tolerance_px, accept_px=accept_px,
+                violation_weight=violation_weight, max_points=max_points, stack=stack, t_range=(t0[rest], t1[rest]),
+            )
+            points[rest], deviation[rest], segment[rest], valid[rest] = p2, d2, s2, v2
+        return points, deviation, segment, valid
     K = int(np.ceil((t1[hit] - t0[hit]).max() / step_mm)) + 1
     chunk = max(1, max_points // max(K, refine_samples))
     half = (refine_samples - 1) // 2

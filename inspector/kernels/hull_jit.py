@@ -25,7 +25,11 @@ class CameraStack:
     t : (C, 3) float64
     dist : (C, 5) float64
     maps : (C, H, W) float32
-        Inside-maps (padded to the largest image; ``sizes`` gives each one's W, H).
+        Inside-maps (padded to the largest image; ``sizes`` gives each one's W, H), with
+        the depth inside the silhouette restored where the inside-map clips it (pixels
+        more than 2 px inside: ``distance to the background - 1.5``, >= 0.5): the same
+        violations everywhere, and :mod:`inspector.kernels.bcps_jit` can tell how far a
+        point is from leaving a silhouette.
     sizes : (C, 2) int64
     open_border : (C,) bool
     """
@@ -35,17 +39,78 @@ class CameraStack:
         self.maps, self.sizes, self.open_border = maps, sizes, open_border
 
 
+#: Outside values are clamped at minus this, px (see :func:`_with_depth`).
+CLAMP_PX = 8.0
+
+
+def _with_depth(inside: np.ndarray, out: np.ndarray) -> None:
+    """Write the inside-map as the compiled kernels use it, a Lipschitz signed distance,
+    into ``out`` (same shape).
+
+    * Inside: the depth is restored where the inside-map clips it (pixels more than 2 px
+      from the background: ``distance - 1.5``, >= 0.5). A 2x2 block of pixels touching
+      such a pixel holds only object pixels, whose values were >= 0 and stay >= 0, so
+      no bilinear sample that was negative (a violation) changes.
+    * Outside: values are clamped at ``-m`` with ``m = min(CLAMP_PX, margin)``, the
+      margin being how far the inside-map's computed region extends beyond the
+      silhouette (it stores -1e6 beyond, not a distance). Points there are at least ``m``
+      px outside, so the clamped map is ``max(signed distance, -m)``: still Lipschitz,
+      and every violation within ``m`` px (all that any tolerance uses) is unchanged.
+    """
+    import cv2
+
+    H, W = inside.shape
+    known = inside > -1e5
+    krows = np.flatnonzero(known.any(axis=1))
+    kcols = np.flatnonzero(known.any(axis=0))
+    if krows.size == 0:
+        out[...] = inside
+        return
+    ky0, ky1, kx0, kx1 = krows[0], krows[-1] + 1, kcols[0], kcols[-1] + 1
+    crop = inside[ky0:ky1, kx0:kx1]
+    mask = crop >= 0.0
+    if not mask.any():
+        out[...] = inside
+        return
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+    hk, wk = crop.shape
+    sides = [y0 if ky0 > 0 else np.inf, hk - y1 if ky1 < H else np.inf, x0 if kx0 > 0 else np.inf, wk - x1 if kx1 < W else np.inf]
+    m = min(CLAMP_PX, float(min(sides)))
+    out.fill(-m)
+    sub = np.maximum(crop, -m)
+    mm = mask[y0:y1, x0:x1]
+    # distance to the nearest background pixel; the crop's edge counts as background
+    d = cv2.distanceTransform(np.pad(mm, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
+    deep = mm & (d > 2.0)
+    inner = sub[y0:y1, x0:x1]
+    inner[deep] = d[deep] - 1.5
+    out[ky0:ky1, kx0:kx1] = sub
+
+
 def stack_views(views: Sequence) -> CameraStack:
-    """Pack :class:`inspector.kernels.bcps.View` objects."""
+    """Pack :class:`inspector.kernels.bcps.View` objects (maps as :func:`_with_depth`)."""
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
     C = len(views)
     H = max(v.inside.shape[0] for v in views)
     W = max(v.inside.shape[1] for v in views)
-    maps = np.full((C, H, W), -1e6, np.float32)
+    maps = np.empty((C, H, W), np.float32)
     sizes = np.zeros((C, 2), np.int64)
-    for i, v in enumerate(views):
+
+    def one(i: int) -> None:
+        v = views[i]
         h, w = v.inside.shape
-        maps[i, :h, :w] = v.inside
+        if (h, w) != (H, W):
+            maps[i] = -CLAMP_PX
+        _with_depth(v.inside, maps[i, :h, :w])
         sizes[i] = (w, h)
+
+    # OpenCV and numpy release the GIL on these arrays: cameras in parallel
+    with ThreadPoolExecutor(max_workers=min(C, os.cpu_count() or 1) or 1) as pool:
+        list(pool.map(one, range(C)))
     return CameraStack(
         np.stack([v.camera.K for v in views]).astype(np.float64),
         np.stack([v.camera.R for v in views]).astype(np.float64),
@@ -128,6 +193,8 @@ def violation(X: np.ndarray, stack: CameraStack, limit: float = np.inf, skip: in
     """Hull violation (px) of world points ``X`` (N, 3) mm; see ``bcps.hull_violation``.
 
     Camera ``skip`` is ignored; values beyond ``limit`` are only known to exceed it.
+    Values below ``CLAMP_PX - 1.5`` are exact; larger ones are only known to be at least
+    that (the maps are clamped, see :func:`_with_depth`).
     """
     global _kernel
     if _kernel is None:

@@ -1,0 +1,346 @@
+"""Compiled ray selection: :func:`inspector.kernels.bcps.select_on_rays` fused per ray.
+
+Profiling the ``ray`` method (after the exact distance index of
+:mod:`inspector.kernels.meshdist`) left its time in the hull kernel (2.3 million samples,
+15 projections each) and in the numpy glue between levels. This kernel runs the same
+search -- coarse samples, then ``refine_levels`` grids around the best one, the same
+costs, tolerances, pruning and tie-breaking -- one ray per iteration, in parallel over
+rays, and adds two exact shortcuts:
+
+* the cameras are tried starting from the one that last rejected a sample of the ray
+  (consecutive samples are usually rejected by the same camera), so a rejected sample
+  costs about one projection instead of half the rig;
+* a refinement sample whose Lipschitz bound ``s_c - |t - t_c|`` (the signed distance is
+  1-Lipschitz) cannot beat the current best is not even tested against the hull.
+
+Rays for which some signed distance fell outside the distance index's band are flagged;
+the caller answers them with the numpy path and the exact fallback.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from inspector.kernels.meshdist import signed_at
+
+numba.config.THREADING_LAYER = "omp"
+
+__all__ = ["select_rays", "MAP_LIPSCHITZ"]
+
+#: Bound of the inside-maps' rate of change, px per px of image motion (bilinear
+#: interpolation of distance transforms and of the coverage ramp: sqrt(2) to about 2.7
+#: where the ramp meets the restored depth), with room to spare.
+MAP_LIPSCHITZ = 3.0
+#: Extra margin of the skip tests, px.
+_MARGIN = 1.0
+
+
+@numba.njit(cache=True, inline="always")
+def _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, limit, skip, first, lc, grec, trec):
+    """Hull violation (px) of the ray's point at ``tk`` and the camera to try first next time.
+
+    ``grec[c]``, ``trec[c]``: the last map value sampled for camera ``c`` on this ray and
+    where (NaN: none); ``lc[c]`` bounds how fast that value can change along the ray (px
+    per mm), so a camera whose silhouette the point cannot have left (or entered) since is
+    not projected again.
+    """
+    C = K.shape[0]
+    worst = 0.0
+    arg = first
+    for jj in range(C):
+        c = first + jj
+        if c >= C:
+            c -= C
+        if c == skip:
+            continue
+        tr = trec[c]
+        if tr == tr:
+            slack = lc[c] * abs(tk - tr)
+            gr = grec[c]
+            if gr - slack > _MARGIN:
+                continue  # still inside this silhouette: contributes nothing
+            if gr + slack < -(limit + _MARGIN):
+                return -(gr + slack), c  # still farther out than the limit
+        xc = R[c, 0, 0] * x0 + R[c, 0, 1] * x1 + R[c, 0, 2] * x2 + t[c, 0]
+        yc = R[c, 1, 0] * x0 + R[c, 1, 1] * x1 + R[c, 1, 2] * x2 + t[c, 1]
+        zc = R[c, 2, 0] * x0 + R[c, 2, 1] * x1 + R[c, 2, 2] * x2 + t[c, 2]
+        if zc <= 0.0:
+            return 1e6, c
+        xn = xc / zc
+        yn = yc / zc
+        k1 = dist[c, 0]
+        k2 = dist[c, 1]
+        p1 = dist[c, 2]
+        p2 = dist[c, 3]
+        k3 = dist[c, 4]
+        if k1 != 0.0 or k2 != 0.0 or p1 != 0.0 or p2 != 0.0 or k3 != 0.0:
+            r2 = xn * xn + yn * yn
+            rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xd = xn * rad + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+            yd = yn * rad + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+            xn = xd
+            yn = yd
+        u = K[c, 0, 0] * xn + K[c, 0, 1] * yn + K[c, 0, 2]
+        v = K[c, 1, 1] * yn + K[c, 1, 2]
+        w = sizes[c, 0]
+        h = sizes[c, 1]
+        if not (u >= 0.0 and u <= w - 1 and v >= 0.0 and v <= h - 1):
+            if open_border[c]:
+                continue
+            return 1e6, c
+        iu = min(int(u), w - 2)
+        iv = min(int(v), h - 2)
+        fu = u - iu
+        fv = v - iv
+        g = (maps[c, iv, iu] * (1.0 - fu) + maps[c, iv, iu + 1] * fu) * (1.0 - fv) + (
+            maps[c, iv + 1, iu] * (1.0 - fu) + maps[c, iv + 1, iu + 1] * fu
+        ) * fv
+        grec[c] = g
+        trec[c] = tk
+        if -g > worst:
+            worst = -g
+            arg = c
+            if worst > limit:
+                return worst, c
+    return worst, arg
+
+
+@numba.njit(cache=True, inline="always")
+def _sd(x0, x1, x2, Rp, tp, tri, pn, lo, h, dims, start, items, dc):
+    """Signed distance of a world point to the reference placed by (Rp, tp)."""
+    a = x0 - tp[0]
+    b = x1 - tp[1]
+    c = x2 - tp[2]
+    px = Rp[0, 0] * a + Rp[1, 0] * b + Rp[2, 0] * c
+    py = Rp[0, 1] * a + Rp[1, 1] * b + Rp[2, 1] * c
+    pz = Rp[0, 2] * a + Rp[1, 2] * b + Rp[2, 2] * c
+    return signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border, skip, lc,
+                   tri, pn, lo, h, dims, start, items, dc, Rp, tp,
+                   step, levels, offsets, tol, accept, weight, lip,
+                   t_out, v_out, s_out, seg_out, oob_out):
+    M = dirs.shape[0]
+    C = K.shape[0]
+    nref = offsets.shape[0]
+    half = (nref - 1) // 2
+    for r in numba.prange(M):
+        t_out[r] = np.nan
+        v_out[r] = np.inf
+        s_out[r] = np.inf
+        seg_out[r] = 0.0
+        oob_out[r] = False
+        a0 = t0[r]
+        a1 = t1[r]
+        if not (a1 > a0):
+            continue
+        d0 = dirs[r, 0]
+        d1 = dirs[r, 1]
+        d2 = dirs[r, 2]
+        first = 0
+        grec = np.empty(C)
+        trec = np.full(C, np.nan)
+        eps = max(0.5 * lip * step, accept)
+        bc = np.inf
+        bt = 0.0
+        bv = np.inf
+        bs = np.inf
+        nfeas = 0
+        oob = False
+        n = int(math.ceil((a1 - a0) / step)) + 1
+        for k in range(n):
+            tk = a0 + step * k
+            if tk > a1 + 1e-9:
+                break
+            x0 = origin[0] + tk * d0
+            x1 = origin[1] + tk * d1
+            x2 = origin[2] + tk * d2
+            v, first = _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lc, grec, trec)
+            if v > eps:
+                continue
+            s = _sd(x0, x1, x2, Rp, tp, tri, pn, lo, h, dims, start, items, dc)
+            if np.isnan(s):
+                oob = True
+                continue
+            nfeas += 1
+            c = s + weight * max(v - tol, 0.0)
+            if c < bc:
+                bc = c
+                bt = tk
+                bv = v
+                bs = s
+        seg_out[r] = nfeas * step
+        if oob:
+            oob_out[r] = True
+            continue
+        if not (bc < np.inf):
+            continue  # no candidate: the numpy path never finds one in refinement either
+        hh = step
+        for _ in range(levels):
+            eps = max(0.5 * lip * hh / half, accept)
+            cb = bs + weight * max(bv - tol, 0.0)
+            lcost = np.inf
+            lt = 0.0
+            lv = 0.0
+            ls = 0.0
+            for j in range(nref):
+                tt = bt + hh * offsets[j]
+                bound = bs - abs(tt - bt)
+                if bound >= cb:
+                    continue
+                x0 = origin[0] + tt * d0
+                x1 = origin[1] + tt * d1
+                x2 = origin[2] + tt * d2
+                v, first = _violation(x0, x1, x2, tt, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lc, grec, trec)
+                if v > eps:
+                    continue
+                pen = weight * max(v - tol, 0.0)
+                if bound + pen >= cb:
+                    continue
+                s = _sd(x0, x1, x2, Rp, tp, tri, pn, lo, h, dims, start, items, dc)
+                if np.isnan(s):
+                    oob = True
+                    continue
+                c = s + pen
+                if c < lcost:
+                    lcost = c
+                    lt = tt
+                    lv = v
+                    ls = s
+            if lcost < cb:
+                bt = lt
+                bv = lv
+                bs = ls
+            hh = hh / half
+        if oob:
+            oob_out[r] = True
+            continue
+        t_out[r] = bt
+        v_out[r] = bv
+        s_out[r] = bs
+
+
+def camera_speed(stack, bounds: np.ndarray) -> np.ndarray:
+    """Per camera, a bound of how fast a point's projection moves, px per mm, for points
+    in the sphere around ``bounds`` (2, 3) mm; inf for cameras with lens distortion
+    (never skipped).
+
+    With ``z`` the depth and ``x`` the normalized coordinates, the Jacobian of ``x`` is
+    ``[I | -x] / z``, whose largest singular value is ``sqrt(1 + |x|^2) / z``.
+    """
+    key = np.asarray(bounds, np.float64).tobytes()
+    cached = getattr(stack, "_speed", None)
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    centre = 0.5 * (bounds[0] + bounds[1])
+    radius = 0.5 * float(np.linalg.norm(bounds[1] - bounds[0]))
+    out = np.full(len(stack.K), np.inf)
+    for c in range(len(stack.K)):
+        if np.any(stack.dist[c]):
+            continue
+        pc = stack.R[c] @ centre + stack.t[c]
+        zmin = pc[2] - radius
+        if zmin <= 0:
+            continue
+        xmax = (float(np.hypot(pc[0], pc[1])) + radius) / zmin
+        k2 = float(np.linalg.norm(stack.K[c][:2, :2], 2))
+        out[c] = k2 * np.sqrt(1.0 + xmax * xmax) / zmin
+    stack._speed = (key, out)  # the same bounds for every camera of a pass
+    return out
+
+
+def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refine_levels, refine_samples,
+                tolerance_px, accept_px, weight, lip, bounds):
+    """Run the fused search on rays ``origin + t * dirs`` (M, 3) over ``[t0, t1]`` (M,).
+
+    Parameters are those of :func:`inspector.kernels.bcps.select_on_rays` (``weight`` in
+    mm per pixel of violation, ``lip`` the projection's Lipschitz bound, px per mm);
+    ``bounds`` (2, 3) the box of the rays' samples, mm; ``stack`` a
+    :class:`~inspector.kernels.hull_jit.CameraStack`, ``mesh`` a
+    :class:`~inspector.kernels.meshdist.MeshDistance` of the reference and ``pose`` (4, 4)
+    reference -> world.
+
+    Returns
+    -------
+    t : (M,) float
+        Ray parameter of the selected point (NaN: no candidate).
+    violation, deviation, segment_mm : (M,) float
+    out_of_band : (M,) bool
+        Rays that met a signed distance outside the index's band (answer them elsewhere).
+    """
+    M = len(dirs)
+    out = [np.empty(M) for _ in range(4)]
+    oob = np.zeros(M, dtype=np.bool_)
+    if M:
+        pose = np.asarray(pose, dtype=np.float64)
+        _select_kernel(
+            np.ascontiguousarray(origin, dtype=np.float64), np.ascontiguousarray(dirs, dtype=np.float64),
+            np.ascontiguousarray(t0, dtype=np.float64), np.ascontiguousarray(t1, dtype=np.float64),
+            stack.K, stack.R, stack.t, stack.dist, stack.maps, stack.sizes, stack.open_border, int(skip),
+            MAP_LIPSCHITZ * camera_speed(stack, np.asarray(bounds, float)),
+            *mesh.args(), np.ascontiguousarray(pose[:3, :3]), np.ascontiguousarray(pose[:3, 3]),
+            float(step_mm), int(refine_levels), np.linspace(-1.0, 1.0, int(refine_samples)), float(tolerance_px),
+            float(accept_px), float(weight), float(lip), *out, oob,
+        )
+    return out[0], out[1], out[2], out[3], oob
+
+
+@numba.njit(cache=True, nogil=True)
+def _ranges_kernel(puv, z, uv, cos, rho, radius, t0, t1):
+    n = puv.shape[0]
+    lo0 = np.inf
+    lo1 = np.inf
+    hi0 = -np.inf
+    hi1 = -np.inf
+    for i in range(n):
+        a = math.floor(puv[i, 0] / rho)
+        b = math.floor(puv[i, 1] / rho)
+        lo0 = min(lo0, a)
+        lo1 = min(lo1, b)
+        hi0 = max(hi0, a)
+        hi1 = max(hi1, b)
+    # cells with a one-cell border, so the 3x3 neighbourhood of any cell is inside
+    w = int(hi0 - lo0) + 3
+    h = int(hi1 - lo1) + 3
+    zmin = np.full((h, w), np.inf)
+    zmax = np.full((h, w), -np.inf)
+    for i in range(n):
+        a = int(math.floor(puv[i, 0] / rho) - lo0) + 1
+        b = int(math.floor(puv[i, 1] / rho) - lo1) + 1
+        zi = z[i]
+        for bb in range(b - 1, b + 2):
+            for aa in range(a - 1, a + 2):
+                if zi < zmin[bb, aa]:
+                    zmin[bb, aa] = zi
+                if zi > zmax[bb, aa]:
+                    zmax[bb, aa] = zi
+    for m in range(uv.shape[0]):
+        a = int(math.floor(uv[m, 0] / rho) - lo0) + 1
+        b = int(math.floor(uv[m, 1] / rho) - lo1) + 1
+        if a < 0 or b < 0 or a >= w or b >= h or not (zmin[b, a] <= zmax[b, a]):
+            continue
+        t0[m] = zmin[b, a] / cos[m] - radius
+        t1[m] = zmax[b, a] / cos[m] + radius
+
+
+def ray_ranges(puv: np.ndarray, z: np.ndarray, uv: np.ndarray, cos: np.ndarray, rho: float,
+               radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled core of :func:`inspector.kernels.bcps.ray_ranges` (same cells, same result).
+
+    ``puv`` (N, 2) and ``z`` (N,): projections and depths of the reconstruction points in
+    front of the camera; ``uv`` (M, 2) the contour points, ``cos`` (M,) their rays' cosine
+    to the optical axis; ``rho`` the cell, px; ``radius`` the margin, mm.
+    """
+    M = len(uv)
+    t0 = np.full(M, np.inf)
+    t1 = np.full(M, -np.inf)
+    if len(z) and M:
+        _ranges_kernel(np.ascontiguousarray(puv, dtype=np.float64), np.ascontiguousarray(z, dtype=np.float64),
+                       np.ascontiguousarray(uv, dtype=np.float64), np.ascontiguousarray(cos, dtype=np.float64),
+                       float(rho), float(radius), t0, t1)
+    return t0, t1
