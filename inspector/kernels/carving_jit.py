@@ -21,13 +21,14 @@ import numpy as np
 # of :func:`carving.carve` (lazily).
 numba.config.THREADING_LAYER = "omp"
 
-__all__ = ["ViewStack", "stack_views", "classify_cells", "f_all", "refine_points"]
+__all__ = ["ViewStack", "stack_views", "classify_cells", "f_all", "refine_points", "finest_points", "gather",
+           "mesh_signs", "mixed_cubes"]
 
 
 class ViewStack:
     """:class:`carving._View` objects packed into arrays (C cameras)."""
 
-    def __init__(self, views: Sequence) -> None:
+    def __init__(self, views: Sequence, sdt: np.ndarray | None = None) -> None:
         C = len(views)
         n = max(v.W * v.H for v in views)
         self.R = np.ascontiguousarray(np.stack([v.R for v in views]), dtype=np.float64)
@@ -42,23 +43,35 @@ class ViewStack:
         self.fgeo = np.array([v.fgeo for v in views], dtype=np.float64)
         self.size = np.array([[v.W, v.H] for v in views], dtype=np.int64)
         self.open = np.array([v.open for v in views], dtype=np.bool_)
-        self.sdt = np.zeros((C, n), dtype=np.float32)
-        for i, v in enumerate(views):
-            self.sdt[i, : v.sdt.size] = v.sdt
+        if sdt is not None and sdt.dtype == np.float32 and sdt.flags.c_contiguous and sdt.shape[0] == C and all(
+                v.sdt.ctypes.data == sdt[i].ctypes.data for i, v in enumerate(views)):
+            self.sdt = sdt  # the views' SDTs are already its rows (carve writes them there)
+        else:
+            self.sdt = np.zeros((C, n), dtype=np.float32)
+            for i, v in enumerate(views):
+                self.sdt[i, : v.sdt.size] = v.sdt
 
     def args(self) -> tuple:
         return (self.R, self.t, self.K2, self.c, self.dist, self.has_dist, self.box, self.s_in, self.s_out,
                 self.fgeo, self.size, self.open, self.sdt)
 
 
-def stack_views(views: Sequence) -> ViewStack:
-    return ViewStack(views)
+def stack_views(views: Sequence, sdt: np.ndarray | None = None) -> ViewStack:
+    """Pack the views; ``sdt`` (C, n) float32: a buffer whose row ``i`` starts with view
+    ``i``'s SDT, used without copying."""
+    return ViewStack(views, sdt)
 
 
 #: Depth below which a point is "at or behind" the camera, mm (``carving._Z_MIN``).
 Z_MIN = 1e-6
 #: Hull-function value of points behind a camera, mm (``carving._BEHIND_MM``).
 BEHIND = -1e9
+#: Cells (parents) per parallel work item of the Newton kernels (their scratch arrays
+#: are allocated once per item).
+_BLOCK = 256
+#: A Newton point farther than this from its cell's centre (max norm, cell edges) is
+#: dropped at once (``carving._LEAVE``).
+_LEAVE = 0.6
 
 
 @numba.njit(cache=True, inline="always")
@@ -109,7 +122,9 @@ def sample(c, u, w, size, sdt):
     s11 = sdt[c, i0 + 1]
     bot = s10 + au * np.float32(s11 - s10)
     g = top + av * (bot - top)
-    e = np.hypot(u - qu, w - qv)
+    du = u - qu
+    dv = w - qv
+    e = np.hypot(du, dv) if (du != 0.0 or dv != 0.0) else 0.0  # most samples are in the window
     return g, e
 
 @numba.njit(cache=True, inline="always")
@@ -124,6 +139,48 @@ def f_cam(c, x0, x1, x2, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt
     if z > Z_MIN:
         return f
     return BEHIND
+
+@numba.njit(cache=True, inline="always")
+def ball_cam_uv(c, u, w, z, xn, yn, r, lipc, slack, has_dist, box, s_in, s_out, size, opn, sdt):
+    """Conservative test of a ball of radius ``r`` mm against camera ``c``, its centre
+    projected at ``u, w, z, xn, yn`` (:func:`project`), as :func:`carving._classify`:
+    0 outside the cone, 1 strictly inside, 2 undecided; the upper and lower bounds of the
+    SDT over the ball's disk, px."""
+    ok = z - r > Z_MIN
+    zr = z - r if ok else 1.0
+    rn = r * np.sqrt(1.0 + xn * xn + yn * yn) / zr
+    if has_dist[c]:
+        inbox = (xn - rn >= box[c, 0]) and (xn + rn <= box[c, 1]) and (yn - rn >= box[c, 2]) and (
+            yn + rn <= box[c, 3])
+        rho = rn * (s_in[c] if inbox else s_out[c])
+    else:
+        rho = rn * s_in[c]
+    g, e = sample(c, u, w, size, sdt)
+    W = size[c, 0]
+    H = size[c, 1]
+    exits = (u - rho < 0.0) or (u + rho > W - 1.0) or (w - rho < 0.0) or (w + rho > H - 1.0)
+    ex = e + rho if exits else 0.0
+    inner = max(e - rho, 0.0)
+    lip = lipc * rho + slack
+    if opn[c]:
+        high = g + lip + ex
+        low = g - lip + inner
+    else:
+        high = g + lip - inner
+        low = g - lip - ex
+    if (ok and high < 0.0) or (z + r <= 0.0):
+        return 0, high, low
+    if ok and low > 0.0:
+        return 1, high, low
+    return 2, high, low
+
+
+@numba.njit(cache=True, inline="always")
+def ball_cam(c, x0, x1, x2, r, lipc, slack, R, t, K2, cc, dist, has_dist, box, s_in, s_out, size, opn, sdt):
+    """:func:`ball_cam_uv` of the ball centred on the world point ``x`` mm."""
+    u, w, z, xn, yn = project(c, x0, x1, x2, R, t, K2, cc, dist, has_dist, box)
+    return ball_cam_uv(c, u, w, z, xn, yn, r, lipc, slack, has_dist, box, s_in, s_out, size, opn, sdt)
+
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _classify_kernel(cells, act, origin, size_mm, r, lipc, slack,
@@ -141,33 +198,12 @@ def _classify_kernel(cells, act, origin, size_mm, r, lipc, slack,
         for c in range(C):
             if not act[n, c]:
                 continue
-            u, w, z, xn, yn = project(c, x0, x1, x2, R, t, K2, cc, dist, has_dist, box)
-            ok = z - r > Z_MIN
-            zr = z - r if ok else 1.0
-            rn = r * np.sqrt(1.0 + xn * xn + yn * yn) / zr
-            if has_dist[c]:
-                inbox = (xn - rn >= box[c, 0]) and (xn + rn <= box[c, 1]) and (yn - rn >= box[c, 2]) and (
-                    yn + rn <= box[c, 3])
-                rho = rn * (s_in[c] if inbox else s_out[c])
-            else:
-                rho = rn * s_in[c]
-            g, e = sample(c, u, w, size, sdt)
-            W = size[c, 0]
-            H = size[c, 1]
-            exits = (u - rho < 0.0) or (u + rho > W - 1.0) or (w - rho < 0.0) or (w + rho > H - 1.0)
-            ex = e + rho if exits else 0.0
-            inner = max(e - rho, 0.0)
-            lip = lipc * rho + slack
-            if opn[c]:
-                high = g + lip + ex
-                low = g - lip + inner
-            else:
-                high = g + lip - inner
-                low = g - lip - ex
-            if (ok and high < 0.0) or (z + r <= 0.0):
+            st, _, _ = ball_cam(c, x0, x1, x2, r, lipc, slack, R, t, K2, cc, dist, has_dist, box, s_in, s_out, size, opn,
+                             sdt)
+            if st == 0:
                 cv = True
                 break
-            if ok and low > 0.0:
+            if st == 1:
                 act_out[n, c] = False
             else:
                 und = True
@@ -190,7 +226,7 @@ def _f_all_kernel(X, act, use_act, R, t, K2, cc, dist, has_dist, box, fgeo, size
         fout[n] = f
         argout[n] = a
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def grad_cam(c, x0, x1, x2, h, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt):
     fp0 = f_cam(c, x0 + h, x1, x2, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
     fp1 = f_cam(c, x0, x1 + h, x2, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
@@ -201,74 +237,231 @@ def grad_cam(c, x0, x1, x2, h, R, t, K2, cc, dist, has_dist, box, fgeo, size, op
     h2 = 2.0 * h
     return (fp0 - fm0) / h2, (fp1 - fm1) / h2, (fp2 - fm2) / h2
 
-@numba.njit(parallel=True, cache=True, nogil=True)
-def _refine_kernel(Cn, act, size_mm, h, max_iter, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt,
-           Xo, No, fo, good):
-    N = Cn.shape[0]
+
+@numba.njit(cache=True, inline="always")
+def chord(a, p0, p1, p2, h, gcache, gflag, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt):
+    """Gradient of camera ``a`` at the parent centre ``p``, computed once per parent."""
+    if not gflag[a]:
+        g0, g1, g2 = grad_cam(a, p0, p1, p2, h, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
+        gcache[a, 0] = g0
+        gcache[a, 1] = g1
+        gcache[a, 2] = g2
+        gflag[a] = True
+    return gcache[a, 0], gcache[a, 1], gcache[a, 2]
+
+
+@numba.njit(cache=True, inline="always")
+def newton_point(c0, c1, c2, p0, p1, p2, use_parent, f, a, act, size_mm, h, max_iter, gcache, gflag, out,
+                 R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt):
+    """:func:`carving._refine_points` for one cell: centre ``c``, parent centre ``p``
+    (used if ``use_parent``), ``f`` and ``a`` the hull function and its camera at ``c``
+    over the flagged cameras ``act`` (C,); ``gcache`` / ``gflag`` the parent's chord
+    gradients. Writes point, normal and residual to ``out`` (7,); True if kept."""
     C = R.shape[0]
-    for n in numba.prange(N):
-        c0 = Cn[n, 0]
-        c1 = Cn[n, 1]
-        c2 = Cn[n, 2]
-        x0 = c0
-        x1 = c1
-        x2 = c2
-        fres = np.inf
-        ares = 0
-        ox0 = c0
-        ox1 = c1
-        ox2 = c2
-        aprev = -1
-        g0 = 0.0
-        g1 = 0.0
-        g2 = 0.0
-        for it in range(max_iter + 1):
+    x0 = c0
+    x1 = c1
+    x2 = c2
+    aprev = -1
+    g0 = g1 = g2 = 0.0
+    s0 = s1 = s2 = 0.0  # start of the current line x = s - tau * g
+    tau = 0.0
+    tau_p = 0.0
+    f_p = 0.0
+    have_p = False
+    for it in range(max_iter + 1):
+        if it > 0:
             f = np.inf
             a = 0
             for c in range(C):
-                if not act[n, c]:
+                if not act[c]:
                     continue
                 fc = f_cam(c, x0, x1, x2, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
                 if fc < f:
                     f = fc
                     a = c
-            if a != aprev:
-                g0, g1, g2 = grad_cam(a, x0, x1, x2, h, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
-                aprev = a
-            if abs(f) <= 1e-3 * size_mm or it == max_iter:
-                ox0 = x0
-                ox1 = x1
-                ox2 = x2
-                fres = f
-                ares = a
-                break
-            gn2 = g0 * g0 + g1 * g1 + g2 * g2
-            k = f / max(gn2, 1e-12) if gn2 > 1e-12 else 0.0
-            x0 = x0 - k * g0
-            x1 = x1 - k * g1
-            x2 = x2 - k * g2
-            if max(abs(x0 - c0), max(abs(x1 - c1), abs(x2 - c2))) > 0.75 * size_mm:
-                break
-        ok = (max(abs(ox0 - c0), max(abs(ox1 - c1), abs(ox2 - c2))) <= 0.5 * size_mm * (1.0 + 1e-9)) and (
-            abs(fres) <= 0.02 * size_mm)
-        good[n] = False
-        if ok:
-            d0, d1, d2 = grad_cam(ares, ox0, ox1, ox2, h, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
+        if abs(f) <= 1e-3 * size_mm or it == max_iter:
+            if (max(abs(x0 - c0), max(abs(x1 - c1), abs(x2 - c2))) > 0.5 * size_mm * (1.0 + 1e-9)) or (
+                    abs(f) > 0.02 * size_mm):
+                return False
+            q0 = x0 - p0
+            q1 = x1 - p1
+            q2 = x2 - p2
+            if use_parent and q0 * q0 + q1 * q1 + q2 * q2 <= h * h:
+                d0, d1, d2 = chord(a, p0, p1, p2, h, gcache, gflag, R, t, K2, cc, dist, has_dist, box, fgeo, size,
+                                   opn, sdt)
+            else:
+                d0, d1, d2 = grad_cam(a, x0, x1, x2, h, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
             gn = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            if gn > 1e-9:
-                good[n] = True
-                Xo[n, 0] = ox0
-                Xo[n, 1] = ox1
-                Xo[n, 2] = ox2
-                No[n, 0] = -d0 / gn
-                No[n, 1] = -d1 / gn
-                No[n, 2] = -d2 / gn
-                fo[n] = fres
+            if not gn > 1e-9:
+                return False
+            out[0] = x0
+            out[1] = x1
+            out[2] = x2
+            out[3] = -d0 / gn
+            out[4] = -d1 / gn
+            out[5] = -d2 / gn
+            out[6] = f
+            return True
+        if a != aprev:
+            if use_parent and it == 0:
+                g0, g1, g2 = chord(a, p0, p1, p2, h, gcache, gflag, R, t, K2, cc, dist, has_dist, box, fgeo, size,
+                                   opn, sdt)
+            else:
+                g0, g1, g2 = grad_cam(a, x0, x1, x2, h, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
+            aprev = a
+            s0 = x0
+            s1 = x1
+            s2 = x2
+            tau = 0.0
+            have_p = False
+        gn2 = g0 * g0 + g1 * g1 + g2 * g2
+        if gn2 > 1e-12:
+            slope = -gn2  # chord
+            if have_p and tau != tau_p:
+                sec = (f - f_p) / (tau - tau_p)
+                if -4.0 * gn2 <= sec <= -0.25 * gn2:
+                    slope = sec
+            f_p = f
+            tau_p = tau
+            have_p = True
+            tau = tau - f / slope
+        x0 = s0 - tau * g0
+        x1 = s1 - tau * g1
+        x2 = s2 - tau * g2
+        if max(abs(x0 - c0), max(abs(x1 - c1), abs(x2 - c2))) > _LEAVE * size_mm:
+            return False
+    return False
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _refine_kernel(Cn, Pn, use_parent, act, size_mm, h, max_iter, R, t, K2, cc, dist, has_dist, box, fgeo, size,
+                   opn, sdt, out, good):
+    N = Cn.shape[0]
+    C = R.shape[0]
+    for b in numba.prange((N + _BLOCK - 1) // _BLOCK):
+        gcache = np.empty((C, 3))
+        gflag = np.zeros(C, dtype=np.bool_)
+        for n in range(b * _BLOCK, min(N, (b + 1) * _BLOCK)):
+            f = np.inf
+            a = 0
+            for c in range(C):
+                gflag[c] = False
+                if not act[n, c]:
+                    continue
+                fc = f_cam(c, Cn[n, 0], Cn[n, 1], Cn[n, 2], R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
+                if fc < f:
+                    f = fc
+                    a = c
+                good[n] = newton_point(Cn[n, 0], Cn[n, 1], Cn[n, 2], Pn[n, 0], Pn[n, 1], Pn[n, 2], use_parent, f, a,
+                                   act[n], size_mm, h, max_iter, gcache, gflag, out[n], R, t, K2, cc, dist, has_dist,
+                                   box, fgeo, size, opn, sdt)
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _finest_kernel(parents, pact, origin, size_mm, r, lipc, slack, h, use_parent, max_iter,
+                   R, t, K2, cc, dist, has_dist, box, s_in, s_out, fgeo, size, opn, sdt, counts, lohi, npts, out):
+    """The finest level in one pass: the 8 children of each boundary parent cell are
+    classified (as :func:`_classify_kernel`) and each boundary child is Newton-projected
+    at once (as :func:`_refine_kernel`), reusing the hull function at its centre from the
+    cell tests and the chord gradients of its parent. Per block of ``_BLOCK`` parents:
+    children carved / inside / boundary (``counts``), integer bounds of the kept children
+    (``lohi``), and its ``npts`` points first in its ``8 * _BLOCK`` rows of ``out``."""
+    M = parents.shape[0]
+    C = R.shape[0]
+    for b in numba.prange((M + _BLOCK - 1) // _BLOCK):
+        act = np.empty(C, dtype=np.bool_)
+        gcache = np.empty((C, 3))
+        gflag = np.empty(C, dtype=np.bool_)
+        lo0 = lo1 = lo2 = np.iinfo(np.int64).max
+        hi0 = hi1 = hi2 = np.iinfo(np.int64).min
+        n_carved = 0
+        n_inside = 0
+        n_bnd = 0
+        j = b * 8 * _BLOCK
+        for m in range(b * _BLOCK, min(M, (b + 1) * _BLOCK)):
+            gflag[:] = False
+            p0 = origin[0] + (parents[m, 0] + 0.5) * (2.0 * size_mm)
+            p1 = origin[1] + (parents[m, 1] + 0.5) * (2.0 * size_mm)
+            p2 = origin[2] + (parents[m, 2] + 0.5) * (2.0 * size_mm)
+            for i0 in range(2):
+                for i1 in range(2):
+                    for i2 in range(2):
+                        k0 = parents[m, 0] * 2 + i0
+                        k1 = parents[m, 1] * 2 + i1
+                        k2 = parents[m, 2] * 2 + i2
+                        x0 = origin[0] + (k0 + 0.5) * size_mm
+                        x1 = origin[1] + (k1 + 0.5) * size_mm
+                        x2 = origin[2] + (k2 + 0.5) * size_mm
+                        cv = False
+                        und = False
+                        f = np.inf
+                        fa = 0
+                        for c in range(C):
+                            act[c] = pact[m, c]
+                        for c in range(C):
+                            if not act[c]:
+                                continue
+                            u, w, z, xn, yn = project(c, x0, x1, x2, R, t, K2, cc, dist, has_dist, box)
+                            st, _, _ = ball_cam_uv(c, u, w, z, xn, yn, r, lipc, slack, has_dist, box, s_in, s_out, size,
+                                                opn, sdt)
+                            if st == 0:
+                                cv = True
+                                break
+                            if st == 1:
+                                act[c] = False
+                                continue
+                            und = True
+                            # the hull function of camera c at the centre (as f_cam), for the Newton start
+                            g, e = sample(c, u, w, size, sdt)
+                            g = g + e if opn[c] else g - e
+                            fc = g * (z / fgeo[c]) if z > Z_MIN else BEHIND
+                            if fc < f:
+                                f = fc
+                                fa = c
+                        if cv:
+                            n_carved += 1
+                            continue
+                        lo0 = min(lo0, k0)
+                        lo1 = min(lo1, k1)
+                        lo2 = min(lo2, k2)
+                        hi0 = max(hi0, k0 + 1)
+                        hi1 = max(hi1, k1 + 1)
+                        hi2 = max(hi2, k2 + 1)
+                        if not und:
+                            n_inside += 1
+                            continue
+                        n_bnd += 1
+                        if newton_point(x0, x1, x2, p0, p1, p2, use_parent, f, fa, act, size_mm, h, max_iter, gcache,
+                                        gflag, out[j], R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt):
+                            j += 1
+        counts[b, 0] = n_carved
+        counts[b, 1] = n_inside
+        counts[b, 2] = n_bnd
+        lohi[b, 0, 0] = lo0
+        lohi[b, 0, 1] = lo1
+        lohi[b, 0, 2] = lo2
+        lohi[b, 1, 0] = hi0
+        lohi[b, 1, 1] = hi1
+        lohi[b, 1, 2] = hi2
+        npts[b] = j - b * 8 * _BLOCK
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _compact_kernel(out, npts, start, dst):
+    """Rows ``[b * 8 * _BLOCK, b * 8 * _BLOCK + npts[b])`` of ``out`` to ``dst`` from
+    ``start[b]``, for every block ``b``."""
+    for b in numba.prange(npts.shape[0]):
+        for i in range(npts[b]):
+            for k in range(out.shape[1]):
+                dst[start[b] + i, k] = out[b * 8 * _BLOCK + i, k]
+
 
 @numba.njit(cache=True, nogil=True)
-def _gather_kernel(cells, act, status, finest, origin, size_mm, lohi, centres, bact, child_cells, child_act):
+def _gather_kernel(cells, act, status, mode, origin, size_mm, lohi, centres, pcentres, bact, child_cells,
+                   child_act):
     N = cells.shape[0]
     C = act.shape[1]
+    finest = mode == 1
     j = 0
     for n in range(N):
         s = status[n]
@@ -286,8 +479,15 @@ def _gather_kernel(cells, act, status, finest, origin, size_mm, lohi, centres, b
         if finest:
             for a in range(3):
                 centres[j, a] = origin[a] + (cells[n, a] + 0.5) * size_mm
+                pcentres[j, a] = origin[a] + ((cells[n, a] >> 1) + 0.5) * (2.0 * size_mm)
             for c in range(C):
                 bact[j, c] = act[n, c]
+            j += 1
+        elif mode == 2:
+            for a in range(3):
+                child_cells[j, a] = cells[n, a]
+            for c in range(C):
+                child_act[j, c] = act[n, c]
             j += 1
         else:
             for i0 in range(2):
@@ -301,7 +501,8 @@ def _gather_kernel(cells, act, status, finest, origin, size_mm, lohi, centres, b
                         j += 1
 
 
-_K = dict(classify=_classify_kernel, f_all=_f_all_kernel, refine=_refine_kernel, gather=_gather_kernel)
+_K = dict(classify=_classify_kernel, f_all=_f_all_kernel, refine=_refine_kernel, gather=_gather_kernel,
+          finest=_finest_kernel)
 
 
 def _compile() -> dict:
@@ -340,44 +541,267 @@ def f_all(stack: ViewStack, X: np.ndarray, active: np.ndarray | None = None) -> 
     return f, arg
 
 
-def refine_points(stack: ViewStack, C: np.ndarray, active: np.ndarray, size_mm: float, h: float,
-                  max_iter: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Compiled :func:`carving._refine_points`; ``C`` (N, 3) cell centres."""
+def refine_points(stack: ViewStack, C: np.ndarray, P: np.ndarray | None, active: np.ndarray, size_mm: float,
+                  h: float, max_iter: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Compiled :func:`carving._refine_points`; ``C`` (N, 3) cell centres, ``P`` (N, 3)
+    their parent cells' centres or None."""
     k = _compile()["refine"]
     C = np.ascontiguousarray(C, dtype=np.float64)
     n = len(C)
-    Xo = np.empty((n, 3))
-    No = np.empty((n, 3))
-    fo = np.empty(n)
+    out = np.empty((n, 7))
     good = np.zeros(n, dtype=np.bool_)
     if n:
         s = stack
-        k(C, np.ascontiguousarray(active, dtype=np.bool_), float(size_mm), float(h), int(max_iter), s.R, s.t, s.K2,
-          s.c, s.dist, s.has_dist, s.box, s.fgeo, s.size, s.open, s.sdt, Xo, No, fo, good)
-    return Xo[good], No[good], fo[good]
+        k(C, C if P is None else np.ascontiguousarray(P, dtype=np.float64), P is not None,
+          np.ascontiguousarray(active, dtype=np.bool_), float(size_mm), float(h), int(max_iter), s.R, s.t, s.K2, s.c, s.dist, s.has_dist, s.box, s.fgeo, s.size, s.open, s.sdt, out,
+          good)
+    o = out[good]
+    return o[:, :3].copy(), o[:, 3:6].copy(), o[:, 6].copy()
 
 
-def gather(cells: np.ndarray, act: np.ndarray, status: np.ndarray, n_boundary: int, finest: bool,
+def finest_points(stack: ViewStack, parents: np.ndarray, act: np.ndarray, origin: np.ndarray, size_mm: float,
+                  r: float, lipc: float, slack: float, h: float, use_parent: bool, max_iter: int = 6) -> tuple:
+    """The finest level from its boundary parents: :func:`classify_cells` of their 8
+    children each (``size_mm`` the children's edge, ``r`` their radius), then
+    :func:`refine_points` of the boundary children (the parents' centres as ``P`` if
+    ``use_parent``), in one pass without materializing the children.
+
+    Returns
+    -------
+    counts : (3,) int
+        Children carved, inside, boundary.
+    lohi : (2, 3) int
+        Integer bounds ``[lo, hi)`` of the kept children (lo > hi when none).
+    points, normals : (M, 3) float
+    residual : (M,) float
+        As :func:`refine_points`, in the order of the children (parents in order, each
+        one's children in ``carving._CHILD_OFFSETS`` order).
+    """
+    k = _compile()["finest"]
+    parents = np.ascontiguousarray(parents)
+    n = len(parents)
+    nb = (n + _BLOCK - 1) // _BLOCK
+    counts = np.zeros((nb, 3), dtype=np.int64)
+    lohi = np.empty((nb, 2, 3), dtype=np.int64)
+    npts = np.zeros(nb, dtype=np.int64)
+    # only the first rows of each block's part are written (np.empty: pages never touched
+    # are never allocated)
+    out = np.empty((8 * _BLOCK * nb, 7))
+    if n:
+        s = stack
+        k(parents, np.ascontiguousarray(act, dtype=np.bool_), np.ascontiguousarray(origin, dtype=np.float64),
+          float(size_mm), float(r), float(lipc), float(slack), float(h), bool(use_parent), int(max_iter), s.R, s.t,
+          s.K2, s.c, s.dist, s.has_dist, s.box, s.s_in, s.s_out, s.fgeo, s.size, s.open, s.sdt, counts, lohi, npts, out)
+    start = np.zeros(nb, dtype=np.int64)
+    np.cumsum(npts[:-1], out=start[1:])
+    o = np.empty((int(npts.sum()), 7))
+    if nb:
+        _compact_kernel(out, npts, start, o)
+    lh = np.array([lohi[:, 0].min(axis=0), lohi[:, 1].max(axis=0)]) if nb else np.array(
+        [[np.iinfo(np.int64).max] * 3, [np.iinfo(np.int64).min] * 3])
+    return counts.sum(axis=0), lh, o[:, :3].copy(), o[:, 3:6].copy(), o[:, 6].copy()
+
+
+def gather(cells: np.ndarray, act: np.ndarray, status: np.ndarray, n_boundary: int, mode: int,
            origin: np.ndarray, size_mm: float) -> tuple:
     """After :func:`classify_cells`: integer bounds ``[lo, hi)`` (2, 3) of the kept cells
-    (inside, plus boundary at the finest level; lo > hi when none), and either the
-    boundary cells' centres (nb, 3) mm and flags (nb, C) (finest level) or their 8
-    children's integer coordinates (8 nb, 3) and flags (8 nb, C), in the numpy order."""
+    (inside, plus boundary at the finest level; lo > hi when none), and in the numpy
+    order, with ``mode`` 0: the boundary cells' 8 children's integer coordinates (8 nb, 3)
+    and flags (8 nb, C); 1 (finest level): the boundary cells' centres (nb, 3) mm, their
+    parents' centres (nb, 3) mm and flags (nb, C); 2: the boundary cells themselves
+    (nb, 3) and their flags (nb, C)."""
     k = _compile()["gather"]
     C = act.shape[1]
     lohi = np.array([[np.iinfo(np.int64).max] * 3, [np.iinfo(np.int64).min] * 3], dtype=np.int64)
-    if finest:
-        centres = np.empty((n_boundary, 3))
-        bact = np.empty((n_boundary, C), dtype=np.bool_)
-        cc = np.empty((0, 3), dtype=cells.dtype)
-        ca = np.empty((0, C), dtype=np.bool_)
-    else:
-        centres = np.empty((0, 3))
-        bact = np.empty((0, C), dtype=np.bool_)
-        cc = np.empty((8 * n_boundary, 3), dtype=cells.dtype)
-        ca = np.empty((8 * n_boundary, C), dtype=np.bool_)
-    k(np.ascontiguousarray(cells), act, status, bool(finest), np.ascontiguousarray(origin, dtype=np.float64),
-      float(size_mm), lohi, centres, bact, cc, ca)
-    if finest:
-        return lohi, centres, bact
+    nf = n_boundary if mode == 1 else 0
+    centres = np.empty((nf, 3))
+    pcentres = np.empty((nf, 3))
+    bact = np.empty((nf, C), dtype=np.bool_)
+    nc = {0: 8 * n_boundary, 1: 0, 2: n_boundary}[mode]
+    cc = np.empty((nc, 3), dtype=cells.dtype)
+    ca = np.empty((nc, C), dtype=np.bool_)
+    k(np.ascontiguousarray(cells), act, status, int(mode), np.ascontiguousarray(origin, dtype=np.float64),
+      float(size_mm), lohi, centres, pcentres, bact, cc, ca)
+    if mode == 1:
+        return lohi, centres, pcentres, bact
     return lohi, cc, ca
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _mesh_signs_kernel(tops, B0, nmax, lo, mv, lipc, slack, R, t, K2, cc, dist, has_dist, box, s_in, s_out, fgeo,
+                       size, opn, sdt, vals, exact, n_eval):
+    """:func:`carving._mesh_signs`, depth first from each top block (parallel over them),
+    trying first the camera that came closest to carving the parent block; nodes also
+    get their exact ``f`` (clipped to +-1e3, ``exact`` set)."""
+    M = tops.shape[0]
+    C = R.shape[0]
+    depth = 1
+    b = B0
+    while b > 1:
+        b //= 2
+        depth += 1
+    for m in numba.prange(M):
+        cap = 8 * depth + 1
+        sblk = np.empty((cap, 5), dtype=np.int64)  # i, j, k, B, hint camera
+        sact = np.empty((cap, C), dtype=np.bool_)
+        slb = np.empty(cap)  # lower bound of f over the dropped cameras, mm
+        act = np.empty(C, dtype=np.bool_)
+        sblk[0, 0] = tops[m, 0]
+        sblk[0, 1] = tops[m, 1]
+        sblk[0, 2] = tops[m, 2]
+        sblk[0, 3] = B0
+        sblk[0, 4] = 0
+        sact[0, :] = True
+        slb[0] = np.inf
+        top = 0
+        cnt = 0
+        while top >= 0:
+            i0 = sblk[top, 0]
+            i1 = sblk[top, 1]
+            i2 = sblk[top, 2]
+            B = sblk[top, 3]
+            hint = sblk[top, 4]
+            for c in range(C):
+                act[c] = sact[top, c]
+            lb = slb[top]
+            top -= 1
+            e0 = min(i0 + B - 1, nmax[0])
+            e1 = min(i1 + B - 1, nmax[1])
+            e2 = min(i2 + B - 1, nmax[2])
+            cnt += 1
+            if e0 == i0 and e1 == i1 and e2 == i2:
+                # A node, its exact f: the cameras proven inside are above lb there, so the
+                # minimum over the others is f when it is <= lb (when <= 0 in particular).
+                x0 = lo[0] + i0 * mv
+                x1 = lo[1] + i1 * mv
+                x2 = lo[2] + i2 * mv
+                fm = np.inf
+                dropped = False
+                for c in range(C):
+                    if not act[c]:
+                        dropped = True
+                        continue
+                    fc = f_cam(c, x0, x1, x2, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
+                    if fc < fm:
+                        fm = fc
+                if fm > lb and dropped:
+                    # the cameras proven inside may attain the minimum
+                    for c in range(C):
+                        if not act[c]:
+                            fc = f_cam(c, x0, x1, x2, R, t, K2, cc, dist, has_dist, box, fgeo, size, opn, sdt)
+                            if fc < fm:
+                                fm = fc
+                vals[i0, i1, i2] = min(max(fm, -1e3), 1e3)
+                exact[i0, i1, i2] = True
+                continue
+            x0 = lo[0] + 0.5 * (i0 + e0) * mv
+            x1 = lo[1] + 0.5 * (i1 + e1) * mv
+            x2 = lo[2] + 0.5 * (i2 + e2) * mv
+            d0 = e0 - i0
+            d1 = e1 - i1
+            d2 = e2 - i2
+            hd = 0.5 * mv * np.sqrt(d0 * d0 * 1.0 + d1 * d1 * 1.0 + d2 * d2 * 1.0)
+            carved = False
+            und = False
+            best = np.inf
+            nh = hint
+            for q in range(C):
+                c = (hint + q) % C
+                if not act[c]:
+                    continue
+                st, high, low = ball_cam(c, x0, x1, x2, hd, lipc, slack, R, t, K2, cc, dist, has_dist, box, s_in,
+                                         s_out, size, opn, sdt)
+                if st == 0:
+                    carved = True
+                    break
+                if st == 1:
+                    act[c] = False
+                    # f of camera c over the ball: G >= low > 0 at depth >= z - hd
+                    zc = R[c, 2, 0] * x0 + R[c, 2, 1] * x1 + R[c, 2, 2] * x2 + t[c, 2]
+                    lb = min(lb, low * ((zc - hd) / fgeo[c]))
+                else:
+                    und = True
+                    if high < best:
+                        best = high
+                        nh = c
+            if carved or not und:
+                sign = -1.0 if carved else 1.0
+                for a0 in range(i0, e0 + 1):
+                    for a1 in range(i1, e1 + 1):
+                        for a2 in range(i2, e2 + 1):
+                            vals[a0, a1, a2] = sign
+                continue
+            h = B // 2
+            for k0 in range(2):
+                for k1 in range(2):
+                    for k2 in range(2):
+                        c0 = i0 + k0 * h
+                        c1 = i1 + k1 * h
+                        c2 = i2 + k2 * h
+                        if c0 > nmax[0] or c1 > nmax[1] or c2 > nmax[2]:
+                            continue
+                        top += 1
+                        sblk[top, 0] = c0
+                        sblk[top, 1] = c1
+                        sblk[top, 2] = c2
+                        sblk[top, 3] = h
+                        sblk[top, 4] = nh
+                        for c in range(C):
+                            sact[top, c] = act[c]
+                        slb[top] = lb
+        n_eval[m] = cnt
+
+
+def mesh_signs(stack: ViewStack, n: np.ndarray, lo: np.ndarray, mv: float, B: int, lipc: float,
+               slack: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Compiled :func:`carving._mesh_signs` on the grid ``lo + index * mv`` (n0, n1, n2).
+
+    Returns ``vals`` (n0, n1, n2) float32 (> 0 exactly where ``f > 0``; the exact ``f``,
+    clipped to +-1e3, where ``exact``, otherwise +-1), ``exact`` (n0, n1, n2) bool and the
+    number of blocks and nodes tested."""
+    n = np.asarray(n, dtype=np.int64)
+    vals = np.empty(tuple(int(k) for k in n), dtype=np.float32)
+    exact = np.zeros(vals.shape, dtype=np.bool_)
+    gi = np.meshgrid(*[np.arange(0, k, B) for k in n], indexing="ij")
+    tops = np.ascontiguousarray(np.stack([g.ravel() for g in gi], axis=1), dtype=np.int64)
+    cnt = np.zeros(len(tops), dtype=np.int64)
+    s = stack
+    _mesh_signs_kernel(tops, int(B), n - 1, np.ascontiguousarray(lo, dtype=np.float64), float(mv), float(lipc),
+                       float(slack), s.R, s.t, s.K2, s.c, s.dist, s.has_dist, s.box, s.s_in, s.s_out, s.fgeo, s.size,
+                       s.open, s.sdt, vals, exact, cnt)
+    return vals, exact, int(cnt.sum())
+
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _mixed_kernel(vol, mixed, corners):
+    n0, n1, n2 = vol.shape
+    for i in numba.prange(n0 - 1):
+        for j in range(n1 - 1):
+            for k in range(n2 - 1):
+                npos = 0
+                for a in range(2):
+                    for b in range(2):
+                        for c in range(2):
+                            if vol[i + a, j + b, k + c] > 0.0:
+                                npos += 1
+                mixed[i, j, k] = 0 < npos < 8
+    corners[:] = False
+    # corners of the mixed cubes: even then odd planes, so no two threads write one plane
+    for parity in range(2):
+        for h in numba.prange((n0 - 1 - parity + 1) // 2):
+            i = 2 * h + parity
+            for j in range(n1 - 1):
+                for k in range(n2 - 1):
+                    if mixed[i, j, k]:
+                        for a in range(2):
+                            for b in range(2):
+                                for c in range(2):
+                                    corners[i + a, j + b, k + c] = True
+
+
+def mixed_cubes(vol: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled :func:`carving._mixed_cubes` of ``vol > 0`` (vol (n0, n1, n2) float32)."""
+    mixed = np.empty(tuple(k - 1 for k in vol.shape), dtype=np.bool_)
+    corners = np.empty(vol.shape, dtype=np.bool_)
+    _mixed_kernel(np.ascontiguousarray(vol), mixed, corners)
+    return mixed, corners
