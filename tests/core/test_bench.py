@@ -112,3 +112,17 @@ def test_import_is_light():
     code = "import sys, inspector.bench; print(sorted(m for m in ('numpy', 'open3d', 'numba', 'scipy', 'cv2') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"
+
+
+def test_carving_ratios(default_recipe, small_capture):
+    """The target ratio is against our whole carve() call; the informative one leaves out
+    only our display mesh."""
+    pytest.importorskip("open3d")
+    from inspector_drivers.replay.folder import read_capture
+
+    _, recipe, _ = default_recipe
+    c = bench.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=2.0, carve_runs=2)
+    ours = c["ours"]
+    assert 0 < ours["without_mesh_median_s"] <= ours["max_s"]
+    assert c["ratio"] == pytest.approx(c["open3d"]["carve_silhouette_s"] / ours["median_s"])
+    assert c["ratio_without_mesh"] == pytest.approx(c["open3d"]["carve_silhouette_s"] / ours["without_mesh_median_s"])

@@ -443,3 +443,157 @@ def test_numba_backend_matches_numpy_distortion_open_border(rig_lo, sphere_lo):
 def test_bad_backend(rig_lo, sphere_lo):
     with pytest.raises(ValueError):
         ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, backend="cuda")
+
+
+# --------------------------------------------------------------------------------------
+# SDT windows, display mesh, Newton points (second optimization round)
+# --------------------------------------------------------------------------------------
+
+
+def _window_masks() -> dict[str, tuple[np.ndarray, bool]]:
+    """Masks with the object away from / touching the border, closed and open."""
+    yy, xx = np.mgrid[:96, :96]
+    away = (xx - 45) ** 2 + (yy - 50) ** 2 < 18**2
+    near = away | ((xx > 70) & (yy > 30) & (yy < 45))  # a bar through the right border
+    corner = (xx < 20) & (yy < 12)  # in the top-left corner
+    tiny = np.zeros((96, 96), bool)
+    tiny[40, 60] = True
+    return {"away": (away, False), "near": (near, False), "corner": (corner, False), "tiny": (tiny, False),
+            "open": (near, True), "empty": (np.zeros((96, 96), bool), False)}
+
+
+@pytest.mark.parametrize("name", ["away", "near", "corner", "tiny", "open", "empty"])
+@pytest.mark.parametrize("margin", [1, 3, 16])
+def test_signed_distance_window_is_the_whole_images(name, margin):
+    mask, is_open = _window_masks()[name]
+    full = ck.signed_distance(mask, open_border=is_open)
+    win, u0, v0 = ck._signed_distance_window(mask, is_open, margin)
+    h, w = win.shape
+    assert h >= 2 and w >= 2 and 0 <= u0 and 0 <= v0 and u0 + w <= 96 and v0 + h <= 96
+    if is_open:
+        assert (u0, v0, w, h) == (0, 0, 96, 96)
+    if mask.any():
+        ys, xs = np.nonzero(mask)  # every object pixel in the window, with the margin
+        assert u0 <= max(xs.min() - margin, 0) and u0 + w >= min(xs.max() + 1 + margin, 96)
+        assert v0 <= max(ys.min() - margin, 0) and v0 + h >= min(ys.max() + 1 + margin, 96)
+    # the same values (cv2's distance transform may differ by an ulp from call to call)
+    np.testing.assert_array_max_ulp(win, full[v0 : v0 + h, u0 : u0 + w], maxulp=2)
+    out = np.full(h * w, np.nan, np.float32)
+    win2, _, _ = ck._signed_distance_window(mask, is_open, margin, out=out)
+    assert np.shares_memory(win2, out) and not np.isnan(out).any()
+
+
+@pytest.mark.parametrize("name", ["away", "near", "corner", "open"])
+def test_window_classification_is_conservative_and_exact_near_the_silhouette(name):
+    """Cells tested on the window: never carved where the whole image's SDT has a point
+    >= 0, never inside where it has a point <= 0, and classified as on the whole image
+    wherever their disk stays in the window (near the silhouette)."""
+    mask, is_open = _window_masks()[name]
+    cam = look_at("c", [0.0, 0.0, -60.0], 120.0, 96)
+    full = ck._prepare(cam, ck.signed_distance(mask, open_border=is_open), is_open)
+    win, u0, v0 = ck._signed_distance_window(mask, is_open, 3)
+    v = ck._prepare(cam, win, is_open, (u0, v0))
+    rng = np.random.default_rng(5)
+    n_balls, n_pts = 3000, 32
+    centres = np.stack([rng.uniform(-30, 30, n_balls), rng.uniform(-30, 30, n_balls), rng.uniform(-30, 30, n_balls)])
+    same = 0
+    for r in (0.1, 0.5, 2.0, 8.0):
+        out, inn = ck._classify(v, centres, r)
+        out_f, inn_f = ck._classify(full, centres, r)
+        d = rng.normal(size=(3, n_balls, n_pts))
+        d *= r * rng.uniform(0, 1, (1, n_balls, n_pts)) ** (1 / 3) / np.linalg.norm(d, axis=0, keepdims=True)
+        d[:, :, 0] = 0.0
+        f = ck._f_camera(full, (centres[:, :, None] + d).reshape(3, -1)).reshape(n_balls, n_pts)
+        assert np.all(f[out] < 0) and np.all(f[inn] > 0)
+        # disks inside the window: the same decisions
+        u, w, z, xn, yn = ck._project(v, centres)
+        rho = 2.0 * r * 120.0 / np.maximum(z - r, 1e-9)  # generous disk radius, px
+        inside_win = (z > r) & (u - rho >= 0) & (u + rho <= v.W - 1) & (w - rho >= 0) & (w + rho <= v.H - 1)
+        np.testing.assert_array_equal(out[inside_win], out_f[inside_win])
+        np.testing.assert_array_equal(inn[inside_win], inn_f[inside_win])
+        same += int(inside_win.sum())
+    assert same > 50
+
+
+def _carve_whole_images(monkeypatch, *args, **kw):
+    """carve() with windows as large as the images (the SDT of the whole images)."""
+    with monkeypatch.context() as m:
+        m.setattr(ck, "_WINDOW_MARGIN_PX", 10**6)
+        return ck.carve(*args, **kw)
+
+
+@pytest.mark.parametrize("backend", ["numba", "numpy"])
+def test_carve_on_windows_equals_whole_images(monkeypatch, rig_lo, sphere_lo, backend):
+    if backend == "numba":
+        pytest.importorskip("numba")
+    c0 = rig_lo[0]
+    uv, _ = c0.project(np.zeros((1, 3)))
+    # camera 0 sees the sphere across its left border (closed, then open)
+    cam0 = look_at("cut", c0.centre, 2000.0, 512, cx=c0.K[0, 2] - uv[0, 0] + 40.0, cy=c0.K[1, 2])
+    cams = [cam0, *rig_lo[1:]]
+    masks = [render_mask(sphere_mesh(), c) for c in cams]
+    assert masks[0][:, 0].any()
+    for ob in (None, [True] + [False] * 15):
+        a = ck.carve(cams, masks, voxel_mm=0.5, open_border=ob, backend=backend)
+        b = _carve_whole_images(monkeypatch, cams, masks, voxel_mm=0.5, open_border=ob, backend=backend)
+        assert len(a.points) > 1000 and a.points.shape == b.points.shape
+        np.testing.assert_allclose(a.points, b.points, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.normals, b.normals, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(a.faces, b.faces)
+        np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
+
+
+def test_mesh_is_marching_cubes_of_the_exact_hull_function(rig_lo, sphere_lo):
+    """The narrow-band grid gives the marching cubes of f evaluated on every node."""
+    from skimage.measure import marching_cubes
+
+    st: dict = {}
+    rec = ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, mesh_voxel_mm=0.7, stats=st)
+    mv = st["mesh_voxel_mm"]
+    lo, hi = st["occupied_bounds"][0] - mv, st["occupied_bounds"][1] + mv
+    n = np.maximum(np.ceil((hi - lo) / mv - 1e-9).astype(np.int64) + 1, 2)
+    gi = np.stack(np.meshgrid(*[np.arange(k) for k in n], indexing="ij")).reshape(3, -1)
+    sdts = [ck.signed_distance(m) for m in sphere_lo]
+    f = ck.hull_function(rig_lo, sdts, (lo[:, None] + gi * mv).T).reshape(tuple(n))
+    vol = np.pad(np.clip(f, -1e3, 1e3).astype(np.float32), 1, constant_values=-1.0)
+    verts, faces, _, _ = marching_cubes(vol, level=0.0, spacing=(mv, mv, mv))
+    verts = verts + (lo - mv)
+    assert st["mesh_evaluated"] < 0.3 * st["mesh_grid"]
+    assert faces.shape == rec.faces.shape
+    np.testing.assert_array_equal(np.sort(rec.faces, axis=1), np.sort(faces, axis=1))
+    np.testing.assert_allclose(rec.vertices, verts, rtol=0, atol=1e-6)
+
+
+def _exact_normals(cams, P: np.ndarray) -> np.ndarray:
+    h = 1e-4
+    g = np.stack([(sphere_cone_sd(cams, P + h * e) - sphere_cone_sd(cams, P - h * e)) / (2 * h) for e in np.eye(3)], 1)
+    return -g / np.linalg.norm(g, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("voxel", [0.1, 0.5])
+def test_normals_match_the_exact_hull(rig_hi, sphere_hi, voxel):
+    """Normals within the documented accuracy (about 4.4 deg median on this sphere), the
+    points on f = 0 within 0.1 % of a voxel."""
+    st: dict = {}
+    rec = ck.carve(rig_hi, sphere_hi, voxel_mm=voxel, stats=st)
+    cos = np.einsum("ij,ij->i", rec.normals, _exact_normals(rig_hi, rec.points))
+    ang = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    assert np.median(ang) < 5.0 and np.percentile(ang, 90) < 10.5 and np.percentile(ang, 99) < 17.0
+    assert st["residual_mm_max"] <= 1e-3 * voxel * (1 + 1e-9)
+
+
+def test_default_bounds_match_the_linear_programs(monkeypatch, rig_lo, sphere_lo, cube_lo):
+    """The box from the polytope's vertices (Qhull) is the one of six linear programs."""
+    ob = [i % 4 == 0 for i in range(16)]
+    for masks, border in ((sphere_lo, None), (cube_lo, ob)):
+        a = ck.default_bounds(rig_lo, masks, open_border=border)
+        with monkeypatch.context() as m:
+            m.setattr(ck, "_polytope_box", lambda *args: None)
+            b = ck.default_bounds(rig_lo, masks, open_border=border)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-6)
+
+
+def test_numba_backend_matches_numpy_without_levels(rig_lo, cube_lo):
+    """The coarse cells are the finest ones (no parent level: the separate Newton kernel)."""
+    pytest.importorskip("numba")
+    _assert_backends_agree(rig_lo, cube_lo, voxel_mm=1.0, coarse_mm=1.0)
