@@ -970,7 +970,11 @@ def _refine_points(
     # the normal: a gradient of camera a taken within h of the point (the chord, or at the
     # parent's centre), else at the point
     chord_ok = (arg_prev[ok] == a) & (np.sum((X - anchor[:, ok]) ** 2, axis=0) <= h * h)
-    at_parent = ~chord_ok & (np.zeros(len(ok), dtype=bool) if Pc is None else np.sum((X - Pc[:, ok]) ** 2, axis=0) <= h * h)
+    at_parent = ~chord_ok
+    if Pc is None:
+        at_parent[:] = False
+    else:
+        at_parent &= np.sum((X - Pc[:, ok]) ** 2, axis=0) <= h * h
     at_point = ~chord_ok & ~at_parent
     grad = np.empty_like(X)
     grad[:, chord_ok] = grad_all[:, ok[chord_ok]]

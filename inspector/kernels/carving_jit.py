@@ -209,8 +209,8 @@ def _classify_kernel(cells, act, origin, size_mm, r, lipc, slack,
         for c in range(C):
             if not act[n, c]:
                 continue
-            st, _, _, _, _ = ball_cam(c, x0, x1, x2, r, lipc, slack, R, t, K2, cc, dist, has_dist, box, s_in, s_out, size, opn,
-                             sdt)
+            st, _, _, _, _ = ball_cam(c, x0, x1, x2, r, lipc, slack, R, t, K2, cc, dist, has_dist, box, s_in, s_out,
+                                      size, opn, sdt)
             if st == 0:
                 cv = True
                 break
@@ -576,8 +576,8 @@ def refine_points(stack: ViewStack, C: np.ndarray, P: np.ndarray | None, active:
     if n:
         s = stack
         k(C, C if P is None else np.ascontiguousarray(P, dtype=np.float64), P is not None,
-          np.ascontiguousarray(active, dtype=np.bool_), float(size_mm), float(h), int(max_iter), s.R, s.t, s.K2, s.c, s.dist, s.has_dist, s.box, s.fgeo, s.size, s.open, s.sdt, out,
-          good)
+          np.ascontiguousarray(active, dtype=np.bool_), float(size_mm), float(h), int(max_iter), s.R, s.t, s.K2, s.c,
+          s.dist, s.has_dist, s.box, s.fgeo, s.size, s.open, s.sdt, out, good)
     o = out[good]
     return o[:, :3].copy(), o[:, 3:6].copy(), o[:, 6].copy()
 
