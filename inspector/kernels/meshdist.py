@@ -103,8 +103,9 @@ def closest(px, py, pz, tri, t):
     return dx * dx + dy * dy + dz * dz, f, dx, dy, dz
 
 @numba.njit(cache=True, inline="always")
-def signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc):
-    """Signed distance of one point (reference frame), NaN when not in the band.
+def nearest(px, py, pz, tri, lo, h, dims, start, items, dc):
+    """Closest triangle of one point (mesh frame): ``(t, feature, dx, dy, dz, d2)`` with
+    ``(dx, dy, dz) = p - q`` (``q`` the closest point); ``t = -1`` when not in the band.
 
     The cell's candidates are sorted by their distance ``dc`` to the cell centre ``c``;
     ``dist(p, T) >= dc - |p - c|`` ends the scan once no later candidate can be closer."""
@@ -112,12 +113,12 @@ def signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc):
     j = int(math.floor((py - lo[1]) / h))
     k = int(math.floor((pz - lo[2]) / h))
     if i < 0 or j < 0 or k < 0 or i >= dims[0] or j >= dims[1] or k >= dims[2]:
-        return np.nan
+        return -1, 0, 0.0, 0.0, 0.0, np.inf
     cell = (i * dims[1] + j) * dims[2] + k
     s = start[cell]
     e = start[cell + 1]
     if e <= s:
-        return np.nan
+        return -1, 0, 0.0, 0.0, 0.0, np.inf
     ex = px - (lo[0] + (i + 0.5) * h)
     ey = py - (lo[1] + (j + 0.5) * h)
     ez = pz - (lo[2] + (k + 0.5) * h)
@@ -142,59 +143,47 @@ def signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc):
             bx = dx
             by = dy
             bz = dz
-    d = math.sqrt(best)
-    side = bx * pn[bt, bf, 0] + by * pn[bt, bf, 1] + bz * pn[bt, bf, 2]
+    return bt, bf, bx, by, bz, best
+
+
+@numba.njit(cache=True, inline="always")
+def signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc):
+    """Signed distance of one point (mesh frame), NaN when not in the band."""
+    t, f, dx, dy, dz, d2 = nearest(px, py, pz, tri, lo, h, dims, start, items, dc)
+    if t < 0:
+        return np.nan
+    d = math.sqrt(d2)
+    side = dx * pn[t, f, 0] + dy * pn[t, f, 1] + dz * pn[t, f, 2]
     return -d if side < 0.0 else d
+
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def query(P, tri, pn, lo, h, dims, start, items, dc, out):
     for n in numba.prange(P.shape[0]):
         out[n] = signed_at(P[n, 0], P[n, 1], P[n, 2], tri, pn, lo, h, dims, start, items, dc)
 
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def closest_query(P, tri, pn, lo, h, dims, start, items, dc, out_q, out_t):
     """Closest points (N, 3) and their triangles (N,) (-1: not in the band)."""
     for n in numba.prange(P.shape[0]):
-        px = P[n, 0]
-        py = P[n, 1]
-        pz = P[n, 2]
-        out_t[n] = -1
-        i = int(math.floor((px - lo[0]) / h))
-        j = int(math.floor((py - lo[1]) / h))
-        k = int(math.floor((pz - lo[2]) / h))
-        if i < 0 or j < 0 or k < 0 or i >= dims[0] or j >= dims[1] or k >= dims[2]:
-            continue
-        cell = (i * dims[1] + j) * dims[2] + k
-        s = start[cell]
-        e = start[cell + 1]
-        if e <= s:
-            continue
-        ex = px - (lo[0] + (i + 0.5) * h)
-        ey = py - (lo[1] + (j + 0.5) * h)
-        ez = pz - (lo[2] + (k + 0.5) * h)
-        off = math.sqrt(ex * ex + ey * ey + ez * ez)
-        best = np.inf
-        bestd = np.inf
-        bt = 0
-        bx = 0.0
-        by = 0.0
-        bz = 0.0
-        for m in range(s, e):
-            if dc[m] - off > bestd:
-                break
-            t = items[m]
-            d2, f, dx, dy, dz = closest(px, py, pz, tri, t)
-            if d2 < best:
-                best = d2
-                bestd = math.sqrt(d2) * (1.0 + 1e-12)
-                bt = t
-                bx = dx
-                by = dy
-                bz = dz
-        out_t[n] = bt
-        out_q[n, 0] = px - bx
-        out_q[n, 1] = py - by
-        out_q[n, 2] = pz - bz
+        t, _, dx, dy, dz, _ = nearest(P[n, 0], P[n, 1], P[n, 2], tri, lo, h, dims, start, items, dc)
+        out_t[n] = t
+        if t >= 0:
+            out_q[n, 0] = P[n, 0] - dx
+            out_q[n, 1] = P[n, 1] - dy
+            out_q[n, 2] = P[n, 2] - dz
+
+
+@numba.njit(cache=True, inline="always")
+def cell_range(tb, t, reach, lo, h, dims):
+    """Index ranges ``j0..j1``, ``k0..k1`` (inclusive) of the cells whose centre may lie
+    within ``reach`` of triangle ``t``'s box along y and z."""
+    j0 = max(int(math.floor((tb[t, 1] - reach - lo[1]) / h - 0.5)), 0)
+    j1 = min(int(math.ceil((tb[t, 4] + reach - lo[1]) / h - 0.5)), dims[1] - 1)
+    k0 = max(int(math.floor((tb[t, 2] - reach - lo[2]) / h - 0.5)), 0)
+    k1 = min(int(math.ceil((tb[t, 5] + reach - lo[2]) / h - 0.5)), dims[2] - 1)
+    return j0, j1, k0, k1
 
 
 @numba.njit(cache=True, inline="always")
@@ -214,10 +203,7 @@ def build_dmin(tri, tb, lo, h, dims, reach, dmin):
         for t in range(F):
             if x < tb[t, 0] - reach or x > tb[t, 3] + reach:
                 continue
-            j0 = max(int(math.floor((tb[t, 1] - reach - lo[1]) / h - 0.5)), 0)
-            j1 = min(int(math.ceil((tb[t, 4] + reach - lo[1]) / h - 0.5)), dims[1] - 1)
-            k0 = max(int(math.floor((tb[t, 2] - reach - lo[2]) / h - 0.5)), 0)
-            k1 = min(int(math.ceil((tb[t, 5] + reach - lo[2]) / h - 0.5)), dims[2] - 1)
+            j0, j1, k0, k1 = cell_range(tb, t, reach, lo, h, dims)
             for j in range(j0, j1 + 1):
                 y = lo[1] + (j + 0.5) * h
                 for k in range(k0, k1 + 1):
@@ -243,10 +229,7 @@ def build_lists(tri, tb, lo, h, dims, band, two_r, dmin, count, start, items, dc
         for t in range(F):
             if x < tb[t, 0] - reach or x > tb[t, 3] + reach:
                 continue
-            j0 = max(int(math.floor((tb[t, 1] - reach - lo[1]) / h - 0.5)), 0)
-            j1 = min(int(math.ceil((tb[t, 4] + reach - lo[1]) / h - 0.5)), dims[1] - 1)
-            k0 = max(int(math.floor((tb[t, 2] - reach - lo[2]) / h - 0.5)), 0)
-            k1 = min(int(math.ceil((tb[t, 5] + reach - lo[2]) / h - 0.5)), dims[2] - 1)
+            j0, j1, k0, k1 = cell_range(tb, t, reach, lo, h, dims)
             for j in range(j0, j1 + 1):
                 y = lo[1] + (j + 0.5) * h
                 for k in range(k0, k1 + 1):
@@ -277,18 +260,6 @@ def sort_lists(start, items, dc):
             d = dc[s:e][o]
             items[s:e] = it
             dc[s:e] = d
-
-
-_KERNELS = dict(query=query, closest_query=closest_query, build_dmin=build_dmin, build_lists=build_lists, sort_lists=sort_lists, signed_at=signed_at)
-
-
-def _compile() -> dict:
-    return _KERNELS
-
-
-def kernels() -> dict:
-    """The compiled kernels (``signed_at`` is inlinable into other Numba kernels)."""
-    return _compile()
 
 
 def _pseudo_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -387,21 +358,20 @@ class MeshDistance:
         dims = np.ceil((vhi + self.band_mm + h - lo) / h).astype(np.int64)
         self._lo = lo
         self._dims = dims
-        k = _compile()
         n = int(np.prod(dims))
         dmin = np.full(n, np.inf)
-        k["build_dmin"](self.tri, self._tb, lo, h, dims, self.band_mm + r2, dmin)
+        build_dmin(self.tri, self._tb, lo, h, dims, self.band_mm + r2, dmin)
         count = np.zeros(n, dtype=np.int64)
         start = np.zeros(n + 1, dtype=np.int64)
         items = np.zeros(0, dtype=np.int32)
         dc = np.zeros(0)
-        k["build_lists"](self.tri, self._tb, lo, h, dims, self.band_mm, r2, dmin, count, start, items, dc, False)
+        build_lists(self.tri, self._tb, lo, h, dims, self.band_mm, r2, dmin, count, start, items, dc, False)
         np.cumsum(count, out=start[1:])
         items = np.empty(int(start[-1]), dtype=np.int32)
         dc = np.empty(int(start[-1]))
         count[:] = 0
-        k["build_lists"](self.tri, self._tb, lo, h, dims, self.band_mm, r2, dmin, count, start, items, dc, True)
-        k["sort_lists"](start, items, dc)
+        build_lists(self.tri, self._tb, lo, h, dims, self.band_mm, r2, dmin, count, start, items, dc, True)
+        sort_lists(start, items, dc)
         self._start = start
         self._items = items
         self._dc = dc
@@ -410,7 +380,7 @@ class MeshDistance:
         self.n_items = int(len(items))
 
     def args(self) -> tuple:
-        """Arrays for :func:`kernels` ``["signed_at"]``: tri, pn, lo, h, dims, start, items, dc."""
+        """Arrays for :func:`signed_at` (inlinable in other kernels): tri, pn, lo, h, dims, start, items, dc."""
         return (self.tri, self.pn, self._lo, self.cell_mm, self._dims, self._start, self._items, self._dc)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
@@ -418,7 +388,7 @@ class MeshDistance:
         P = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         out = np.empty(len(P))
         if len(P):
-            _compile()["query"](P, *self.args(), out)
+            query(P, *self.args(), out)
             miss = np.isnan(out)
             if self.fallback is not None and miss.any():
                 out[miss] = self.fallback(P[miss])
@@ -430,7 +400,7 @@ class MeshDistance:
         q = np.full((len(P), 3), np.nan)
         tid = np.full(len(P), -1, dtype=np.int64)
         if len(P):
-            _compile()["closest_query"](P, *self.args(), q, tid)
+            closest_query(P, *self.args(), q, tid)
             miss = tid < 0
             if self.fallback_closest is not None and miss.any():
                 q[miss], tid[miss] = self.fallback_closest(P[miss])
