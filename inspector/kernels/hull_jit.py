@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 __all__ = ["CameraStack", "stack_views", "violation"]
@@ -122,71 +123,75 @@ def stack_views(views: Sequence) -> CameraStack:
     )
 
 
-_kernel = None
+# OpenMP (libgomp, a system prerequisite): the TBB found in some environments is too old
+# and numba would warn about it on every run. This module is imported lazily (by the
+# bcps stage), so ``import inspector`` stays free of Numba.
+numba.config.THREADING_LAYER = "omp"
 
 
-def _compile():
-    import numba
+@numba.njit(cache=True, inline="always")
+def map_value(c, x0, x1, x2, K, R, t, dist, maps, sizes, open_border):
+    """Bilinear map value of camera ``c`` at the projection of a world point.
 
-    # OpenMP (libgomp, a system prerequisite): the TBB found in some environments is too
-    # old and numba would warn about it on every run.
-    numba.config.THREADING_LAYER = "omp"
+    Returns ``(code, g)``: code 0 with the value ``g`` (px), 1 when the point falls outside
+    an open-border image (unknown: no constraint), 2 when it is behind the camera or
+    outside a closed image (rejected).
+    """
+    xc = R[c, 0, 0] * x0 + R[c, 0, 1] * x1 + R[c, 0, 2] * x2 + t[c, 0]
+    yc = R[c, 1, 0] * x0 + R[c, 1, 1] * x1 + R[c, 1, 2] * x2 + t[c, 1]
+    zc = R[c, 2, 0] * x0 + R[c, 2, 1] * x1 + R[c, 2, 2] * x2 + t[c, 2]
+    if zc <= 0.0:
+        return 2, 0.0
+    xn = xc / zc
+    yn = yc / zc
+    k1 = dist[c, 0]
+    k2 = dist[c, 1]
+    p1 = dist[c, 2]
+    p2 = dist[c, 3]
+    k3 = dist[c, 4]
+    if k1 != 0.0 or k2 != 0.0 or p1 != 0.0 or p2 != 0.0 or k3 != 0.0:
+        r2 = xn * xn + yn * yn
+        rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = xn * rad + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
+        yd = yn * rad + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
+        xn = xd
+        yn = yd
+    u = K[c, 0, 0] * xn + K[c, 0, 1] * yn + K[c, 0, 2]
+    v = K[c, 1, 1] * yn + K[c, 1, 2]
+    w = sizes[c, 0]
+    h = sizes[c, 1]
+    if not (u >= 0.0 and u <= w - 1 and v >= 0.0 and v <= h - 1):
+        return (1 if open_border[c] else 2), 0.0
+    iu = min(int(u), w - 2)
+    iv = min(int(v), h - 2)
+    fu = u - iu
+    fv = v - iv
+    g = (maps[c, iv, iu] * (1.0 - fu) + maps[c, iv, iu + 1] * fu) * (1.0 - fv) + (
+        maps[c, iv + 1, iu] * (1.0 - fu) + maps[c, iv + 1, iu + 1] * fu
+    ) * fv
+    return 0, g
 
-    @numba.njit(parallel=True, cache=True, nogil=True)
-    def kernel(X, K, R, t, dist, maps, sizes, open_border, limit, skip, out):
-        N = X.shape[0]
-        C = K.shape[0]
-        for n in numba.prange(N):
-            x0 = X[n, 0]
-            x1 = X[n, 1]
-            x2 = X[n, 2]
-            worst = 0.0
-            for c in range(C):
-                if c == skip:
-                    continue
-                xc = R[c, 0, 0] * x0 + R[c, 0, 1] * x1 + R[c, 0, 2] * x2 + t[c, 0]
-                yc = R[c, 1, 0] * x0 + R[c, 1, 1] * x1 + R[c, 1, 2] * x2 + t[c, 1]
-                zc = R[c, 2, 0] * x0 + R[c, 2, 1] * x1 + R[c, 2, 2] * x2 + t[c, 2]
-                if zc <= 0.0:
-                    worst = 1e6
+
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _kernel(X, K, R, t, dist, maps, sizes, open_border, limit, skip, out):
+    N = X.shape[0]
+    C = K.shape[0]
+    for n in numba.prange(N):
+        worst = 0.0
+        for c in range(C):
+            if c == skip:
+                continue
+            code, g = map_value(c, X[n, 0], X[n, 1], X[n, 2], K, R, t, dist, maps, sizes, open_border)
+            if code == 1:
+                continue
+            if code == 2:
+                worst = 1e6
+                break
+            if -g > worst:
+                worst = -g
+                if worst > limit:
                     break
-                xn = xc / zc
-                yn = yc / zc
-                k1 = dist[c, 0]
-                k2 = dist[c, 1]
-                p1 = dist[c, 2]
-                p2 = dist[c, 3]
-                k3 = dist[c, 4]
-                if k1 != 0.0 or k2 != 0.0 or p1 != 0.0 or p2 != 0.0 or k3 != 0.0:
-                    r2 = xn * xn + yn * yn
-                    rad = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-                    xd = xn * rad + 2.0 * p1 * xn * yn + p2 * (r2 + 2.0 * xn * xn)
-                    yd = yn * rad + p1 * (r2 + 2.0 * yn * yn) + 2.0 * p2 * xn * yn
-                    xn = xd
-                    yn = yd
-                u = K[c, 0, 0] * xn + K[c, 0, 1] * yn + K[c, 0, 2]
-                v = K[c, 1, 1] * yn + K[c, 1, 2]
-                w = sizes[c, 0]
-                h = sizes[c, 1]
-                if not (u >= 0.0 and u <= w - 1 and v >= 0.0 and v <= h - 1):
-                    if open_border[c]:
-                        continue
-                    worst = 1e6
-                    break
-                iu = min(int(u), w - 2)
-                iv = min(int(v), h - 2)
-                fu = u - iu
-                fv = v - iv
-                g = (maps[c, iv, iu] * (1.0 - fu) + maps[c, iv, iu + 1] * fu) * (1.0 - fv) + (
-                    maps[c, iv + 1, iu] * (1.0 - fu) + maps[c, iv + 1, iu + 1] * fu
-                ) * fv
-                if -g > worst:
-                    worst = -g
-                    if worst > limit:
-                        break
-            out[n] = worst
-
-    return kernel
+        out[n] = worst
 
 
 def violation(X: np.ndarray, stack: CameraStack, limit: float = np.inf, skip: int = -1) -> np.ndarray:
@@ -196,9 +201,6 @@ def violation(X: np.ndarray, stack: CameraStack, limit: float = np.inf, skip: in
     Values below ``CLAMP_PX - 1.5`` are exact; larger ones are only known to be at least
     that (the maps are clamped, see :func:`_with_depth`).
     """
-    global _kernel
-    if _kernel is None:
-        _kernel = _compile()
     X = np.ascontiguousarray(X, dtype=np.float64)
     out = np.empty(len(X))
     _kernel(X, stack.K, stack.R, stack.t, stack.dist, stack.maps, stack.sizes, stack.open_border, float(min(limit, 1e300)), int(skip), out)
