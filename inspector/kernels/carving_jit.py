@@ -798,6 +798,18 @@ def mesh_signs(stack: ViewStack, n: np.ndarray, lo: np.ndarray, mv: float, B: in
     return vol, exact, int(cnt.sum())
 
 
+@numba.njit(cache=True, inline="always")
+def _touches_sign_change(cube, i, j, k):
+    """Inner node (i, j, k) -- vol's (i + 1, j + 1, k + 1) -- is a corner of a flagged cube
+    (the cubes at vol's (i..i+1, j..j+1, k..k+1), flagged at (i+1..i+2, ...) in ``cube``)."""
+    for a in range(1, 3):
+        for b in range(1, 3):
+            for c in range(1, 3):
+                if cube[i + a, j + b, k + c]:
+                    return True
+    return False
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _need_kernel(vol, exact, cube, count):
     """``cube[i + 1, j + 1, k + 1]``: the cube at ``(i, j, k)`` of ``vol`` has both signs;
@@ -823,14 +835,7 @@ def _need_kernel(vol, exact, cube, count):
             for k in range(n2 - 2):
                 if exact[i, j, k]:
                     continue
-                # inner node (i, j, k) is vol's (i + 1, j + 1, k + 1): a corner of the cubes
-                # at vol's (i..i+1, j..j+1, k..k+1), flagged at (i+1..i+2, ...) in cube
-                need = False
-                for a in range(1, 3):
-                    for b in range(1, 3):
-                        for c in range(1, 3):
-                            need = need or cube[i + a, j + b, k + c]
-                if need:
+                if _touches_sign_change(cube, i, j, k):
                     m += 1
         count[i] = m
 
@@ -844,12 +849,7 @@ def _need_list_kernel(exact, cube, start, idx):
             for k in range(n2):
                 if exact[i, j, k]:
                     continue
-                need = False
-                for a in range(1, 3):
-                    for b in range(1, 3):
-                        for c in range(1, 3):
-                            need = need or cube[i + a, j + b, k + c]
-                if need:
+                if _touches_sign_change(cube, i, j, k):
                     idx[m, 0] = i
                     idx[m, 1] = j
                     idx[m, 2] = k
