@@ -105,15 +105,7 @@ class Reference:
         closest points; (N, 3) world mm -> (N, 3)."""
         p = self.to_reference_frame(points, pose)
         _, tid = self.distance.closest(p)
-        return self.face_normals[tid] @ pose[:3, :3].T
-
-    @cached_property
-    def face_normals(self) -> np.ndarray:
-        """Unit normals (F, 3) of the triangles, reference frame."""
-        tri = self.vertices[self.faces]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        ln = np.linalg.norm(n, axis=1, keepdims=True)
-        return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
+        return self.distance.pn[tid, 0] @ pose[:3, :3].T  # the triangles' unit normals
 
     def to_reference_frame(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """World points (N, 3) -> reference frame, using ``pose`` (reference -> world)."""

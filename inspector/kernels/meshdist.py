@@ -317,6 +317,11 @@ class MeshDistance:
 
     Attributes
     ----------
+    tri : (F, 9) float
+        Triangle corners a, b, c.
+    pn : (F, 7, 3) float
+        Pseudo-normals per feature (face, vertices a, b, c, edges ab, bc, ca); ``pn[:, 0]``
+        are the triangles' unit normals.
     band_mm, cell_mm : float
     n_cells : int
         Cells of the grid; ``n_band`` of them have a candidate list, ``n_items`` entries in all.
