@@ -27,6 +27,7 @@ class RayParams:
     refine_levels: int = param(3, "refinement levels around the coarse minimum (each 5x finer: 2 um after 3)", min=0, max=6)
     refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
     refine_robust_mm: float = param(0.1, "robust scale of the re-alignment (points beyond are down-weighted), mm", min=0.001)
+    refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001)
     refine_stride: int = param(3, "the selection that feeds the re-alignment uses every n-th contour point", min=1)
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
     accept_px: float = param(1.0, "largest hull violation of a selected point, px (beyond: the ray has no point)", min=0.0, max=5.0)
@@ -39,6 +40,7 @@ class RayParams:
 class SurfaceParams:
     refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
     refine_robust_mm: float = param(0.3, "robust scale of the re-alignment, mm", min=0.001)
+    refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001)
 
 
 def _bounds(ctx: InspectionContext, margin: float) -> np.ndarray:
@@ -160,13 +162,17 @@ def _run(select):
             # flush (BCPS points sit on edges, each close to two faces) and report the
             # others twice too far. So the fit is on the points moved by the median
             # deviation along the reference normals: a uniformly small part comes out
-            # centred and uniformly small.
+            # centred and uniformly small. The robust scale starts wide (refine_start_mm):
+            # on a nearly symmetric part (a shaft with a flat) the few points that fix
+            # the rotation about its axis are off by tenths of a millimetre, beyond the
+            # final scale, until the fit has used them.
             pose = alignment.pose
             for _ in range(2):
                 offset = float(np.median(ref.signed_distance(sel.points, pose)))
                 target = sel.points - offset * ref.surface_normals(sel.points, pose)
                 refined = refine_on_points(
-                    target, ref.vertices, ref.faces, pose, robust_mm=p.refine_robust_mm, index=ref.distance
+                    target, ref.vertices, ref.faces, pose, robust_mm=p.refine_robust_mm, index=ref.distance,
+                    start_mm=p.refine_start_mm,
                 )
                 pose = refined.pose
                 if abs(offset) < 0.5 * p.refine_robust_mm:

@@ -679,6 +679,7 @@ def refine_on_points(
     robust_mm: float = 0.3,
     iterations: int = 20,
     index: Any = None,
+    start_mm: float | None = None,
 ) -> Alignment:
     """Robustly re-fit the reference pose on points that lie on its surface.
 
@@ -712,6 +713,11 @@ def refine_on_points(
         The reference's exact distance index (:class:`~inspector.kernels.meshdist.MeshDistance`
         built on ``ref_vertices``, ``ref_faces``; e.g. ``Reference.distance``): closest
         points come from it instead of a new Open3D scene.
+    start_mm : float, optional
+        Initial Tukey cutoff, mm (default: the data-driven value). A wide start (e.g.
+        1 mm) lets the few points that pin a near-symmetry (the flat of a shaft, off by
+        tenths of a millimetre while the rotation about the axis is wrong) act before
+        the cutoff shrinks to ``robust_mm``.
 
     Returns
     -------
@@ -730,12 +736,13 @@ def refine_on_points(
     verts, faces = _as_mesh(ref_vertices, ref_faces)
     P = _as_pose(pose)
     robust_mm = _positive("robust_mm", robust_mm)
+    start = np.inf if start_mm is None else _positive("start_mm", start_mm)
     if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 0:
         raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
 
     ref = _Reference(verts, faces, index)
     W, dist, _ = _robust_fit(
-        ref, pts, ref.w_from_pose(P), floor_mm=robust_mm, start_mm=np.inf, iterations=int(iterations),
+        ref, pts, ref.w_from_pose(P), floor_mm=robust_mm, start_mm=start, iterations=int(iterations),
         tol=1e-6 * ref.diag,
     )
     fitness, rmse = _summary(dist, robust_mm)
