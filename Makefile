@@ -24,3 +24,9 @@ test: $(STAMP)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
+
+# Accuracy on captures written by another program (tests/acceptance/foreign_capture.py):
+# unseen parts x imaging conditions through `inspector run`, table in docs/acceptance.md.
+.PHONY: acceptance
+acceptance: $(STAMP)
+	$(PY) tests/acceptance/run_matrix.py --work out/acceptance --out-md docs/acceptance.md

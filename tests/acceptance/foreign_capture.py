@@ -1,0 +1,571 @@
+"""Foreign capture writer: CAD-like parts the product has never seen, rendered by another program.
+
+This module is deliberately independent of the product: it imports nothing from
+``inspector``, ``inspector_plugins`` or ``inspector_drivers``. It builds its own parts
+(trimesh + manifold3d), its own 16-camera rig (golden-spiral sphere, random roll), its own
+exact anti-aliased silhouette renderer (shapely polygon union + exact pixel-box areas) and
+writes capture folders in the CONTRACT format of ``docs/architecture.md``:
+
+    <root>/captures/<name>/rig.json, images/camNN.png, capture.json
+    <root>/truth/<name>/reference.stl   nominal part, part frame (bounding-box centred), mm
+    <root>/truth/<name>/true_world.ply  the true surface (pose + defect applied), world mm
+    <root>/truth/<name>/truth.json      pose, defect, rig summary, pixel footprint
+
+The truth lives *outside* the capture folder so the product cannot see it.
+
+Conventions (CONTRACT): mm, ``x_cam = R @ x_world + t``, pixel ``(u, v)`` with ``(0, 0)``
+the centre of the top-left pixel, ``u`` right, ``v`` down. Pixel ``(j, i)`` therefore covers
+the box ``[j - 0.5, j + 0.5] x [i - 0.5, i + 0.5]`` in image coordinates.
+
+CLI::
+
+    python tests/acceptance/foreign_capture.py selfcheck
+    python tests/acceptance/foreign_capture.py write ROOT --part hexnut --condition grey \
+        --defect scale --seed 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import shapely
+import trimesh
+from scipy.spatial import ConvexHull
+from scipy.spatial.transform import Rotation
+
+__all__ = [
+    "CONDITIONS",
+    "DEFECTS",
+    "PARTS",
+    "Camera",
+    "coverage",
+    "fibonacci_rig",
+    "make_capture",
+    "make_part",
+    "self_check",
+    "silhouette",
+    "to_image",
+]
+
+#: Imaging conditions of the acceptance requirement.
+CONDITIONS = ("grey", "binary", "strong")
+#: Defects applied to the true part (the reference stays nominal).
+DEFECTS = ("none", "scale", "bump_removed")
+#: Grey levels (background, object) for a dark object on a bright (backlit) background.
+LEVELS_DARK = (200.0, 40.0)
+
+# Round features: enough sections that the part looks round, not more (the truth is
+# the mesh itself and the product is given the same nominal mesh as reference).
+SECTIONS = 128
+#: Holes of the silhouette union smaller than this (px^2) are rounding slivers, not geometry.
+HOLE_MIN_PX2 = 1e-6
+
+
+# --------------------------------------------------------------------------- parts
+
+
+def _union(meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    return trimesh.boolean.union(meshes, engine="manifold")
+
+
+def _difference(meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    return trimesh.boolean.difference(meshes, engine="manifold")
+
+
+def _intersection(meshes: list[trimesh.Trimesh]) -> trimesh.Trimesh:
+    return trimesh.boolean.intersection(meshes, engine="manifold")
+
+
+def _cyl(radius: float, p0: tuple[float, float, float], p1: tuple[float, float, float]) -> trimesh.Trimesh:
+    """Cylinder of ``radius`` mm with its axis from ``p0`` to ``p1`` (mm)."""
+    return trimesh.creation.cylinder(radius=radius, segment=np.array([p0, p1], float), sections=SECTIONS)
+
+
+def _box(extents: tuple[float, float, float], centre: tuple[float, float, float] = (0, 0, 0)) -> trimesh.Trimesh:
+    m = trimesh.creation.box(extents=np.asarray(extents, float))
+    m.apply_translation(np.asarray(centre, float))
+    return m
+
+
+def _revolve(profile_rz: list[tuple[float, float]]) -> trimesh.Trimesh:
+    """Solid of revolution about z of a closed (r, z) profile whose ends lie on the axis."""
+    return trimesh.creation.revolve(np.asarray(profile_rz, float), sections=SECTIONS)
+
+
+def _torus() -> trimesh.Trimesh:
+    """Torus, major radius 11 mm, minor radius 4 mm (30 x 30 x 8 mm)."""
+    return trimesh.creation.torus(major_radius=11.0, minor_radius=4.0, major_sections=SECTIONS, minor_sections=64)
+
+
+def _hexnut() -> trimesh.Trimesh:
+    """Hex nut: 30 mm across flats, 12 mm thick, 30 deg chamfered corners, Ø14 bore with 0.8 mm chamfers."""
+    r_corner = 15.0 / math.cos(math.pi / 6)
+    prism = trimesh.creation.cylinder(radius=r_corner, height=12.0, sections=6)
+    # Double cone at 30 deg to the faces, touching them on the across-flats circle.
+    k = math.tan(math.radians(60.0))  # dr/dz of a cone at 30 deg to the face plane
+    chamfer = _revolve([(0.0, -6.0), (15.0, -6.0), (15.0 + 6.0 * k, 0.0), (15.0, 6.0), (0.0, 6.0)])
+    # Bore with 45 deg countersinks, overshooting both faces so the boolean is clean.
+    bore = _revolve([(0.0, -7.0), (8.8, -7.0), (7.0, -5.2), (7.0, 5.2), (8.8, 7.0), (0.0, 7.0)])
+    return _difference([_intersection([prism, chamfer]), bore])
+
+
+def _shaft() -> trimesh.Trimesh:
+    """Stepped shaft Ø20 x 16 + Ø12 x 16 along z, Ø5 cross hole in the Ø20 step, milled flat on the Ø12 step."""
+    body = _union([_cyl(10.0, (0, 0, -16.0), (0, 0, 0.0)), _cyl(6.0, (0, 0, -0.01), (0, 0, 16.0))])
+    cross = _cyl(2.5, (-12.0, 0, -8.0), (12.0, 0, -8.0))
+    # Flat 4.5 mm from the axis, 10 mm long, ending 2 mm before the end of the shaft.
+    flat = _box((4.0, 14.0, 10.0), (4.5 + 2.0, 0.0, 9.0))
+    return _difference([body, cross, flat])
+
+
+def _housing() -> trimesh.Trimesh:
+    """Box 26 x 20 x 14 mm, 16 x 10 x 8 mm pocket open on +z, two Ø4 through holes along z."""
+    box = _box((26.0, 20.0, 14.0))
+    pocket = _box((16.0, 10.0, 8.01), (0.0, 0.0, 7.0 - 4.0 + 0.005))
+    holes = [_cyl(2.0, (sx * 10.5, 0.0, -8.0), (sx * 10.5, 0.0, 8.0)) for sx in (-1.0, 1.0)]
+    return _difference([box, pocket, *holes])
+
+
+PARTS: dict[str, Any] = {
+    "torus": _torus,
+    "hexnut": _hexnut,
+    "shaft": _shaft,
+    "housing": _housing,
+}
+
+
+def make_part(name: str) -> trimesh.Trimesh:
+    """Nominal part ``name`` in its part frame: bounding-box centre at the origin, mm.
+
+    The product's ``load_reference`` re-centres a file reference on its bounding-box
+    centre; building the parts already centred makes the part frame and the product's
+    reference frame the same, so a true pose can be compared with ``result.json``.
+
+    Raises
+    ------
+    KeyError
+        Unknown part name.
+    RuntimeError
+        The boolean result is not a closed, positively wound solid.
+    """
+    mesh = PARTS[name]()
+    mesh.apply_translation(-mesh.bounds.mean(axis=0))
+    _check_solid(mesh, name)
+    return mesh
+
+
+def _check_solid(mesh: trimesh.Trimesh, what: str) -> None:
+    if not (len(mesh.faces) and mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0):
+        raise RuntimeError(f"{what}: not a closed solid (faces={len(mesh.faces)}, watertight={mesh.is_watertight})")
+
+
+# --------------------------------------------------------------------------- pose and defects
+
+
+def random_pose(rng: np.random.Generator, offset_mm: float = 3.0) -> np.ndarray:
+    """Uniformly random rotation and a translation uniform in ``[-offset_mm, offset_mm]^3``.
+
+    Returns
+    -------
+    (4, 4) float
+        Part -> world transform, mm.
+    """
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
+    T[:3, 3] = rng.uniform(-offset_mm, offset_mm, 3)
+    return T
+
+
+def _hull_surface_point(mesh: trimesh.Trimesh, rng: np.random.Generator, n: int = 4000) -> np.ndarray:
+    """A random surface point on the convex hull of ``mesh`` (so a removed bump shows in silhouettes).
+
+    Returns
+    -------
+    (3,) float
+        Point on the surface, part frame, mm.
+    """
+    # Area-weighted face choice with uniform barycentric coordinates (own seeded sampler).
+    area = mesh.area_faces / mesh.area_faces.sum()
+    faces = rng.choice(len(mesh.faces), size=n, p=area)
+    a, b = rng.random((2, n))
+    flip = a + b > 1.0
+    a[flip], b[flip] = 1.0 - a[flip], 1.0 - b[flip]
+    tri = mesh.triangles[faces]
+    pts = tri[:, 0] + a[:, None] * (tri[:, 1] - tri[:, 0]) + b[:, None] * (tri[:, 2] - tri[:, 0])
+    eq = ConvexHull(mesh.vertices).equations  # (m, 4): n . x + d <= 0 inside
+    on_hull = np.max(pts @ eq[:, :3].T + eq[:, 3], axis=1) > -1e-6
+    cand = pts[on_hull] if on_hull.any() else pts
+    return cand[rng.integers(len(cand))]
+
+
+def apply_defect(
+    nominal: trimesh.Trimesh, defect: str, rng: np.random.Generator, *, scale: float = 0.98, bump_radius_mm: float = 2.5
+) -> tuple[trimesh.Trimesh, dict[str, Any]]:
+    """The true part: ``nominal`` with ``defect`` applied, in the part frame (mm).
+
+    Parameters
+    ----------
+    defect : {"none", "scale", "bump_removed"}
+        ``scale``: uniform scale by ``scale`` about the part centre (the origin);
+        ``bump_removed``: a sphere of ``bump_radius_mm`` centred on a random point of the
+        part's convex-hull surface is subtracted (manifold boolean).
+
+    Returns
+    -------
+    mesh : trimesh.Trimesh
+        The true part, part frame, mm.
+    info : dict
+        What was applied (JSON-serialisable).
+    """
+    mesh = nominal.copy()
+    if defect == "none":
+        return mesh, {"kind": "none"}
+    if defect == "scale":
+        mesh.apply_scale(scale)
+        return mesh, {"kind": "scale", "scale": scale}
+    if defect == "bump_removed":
+        at = _hull_surface_point(nominal, rng)
+        ball = trimesh.creation.icosphere(subdivisions=4, radius=bump_radius_mm)
+        ball.apply_translation(at)
+        mesh = _difference([mesh, ball])
+        _check_solid(mesh, "bump_removed")
+        return mesh, {"kind": "bump_removed", "at_mm": at.tolist(), "radius_mm": bump_radius_mm}
+    raise ValueError(f"unknown defect {defect!r} (known: {', '.join(DEFECTS)})")
+
+
+# --------------------------------------------------------------------------- rig
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera without distortion (CONTRACT conventions).
+
+    Attributes
+    ----------
+    K : (3, 3) float
+        Intrinsics, px.
+    R : (3, 3) float
+        World -> camera rotation.
+    t : (3,) float
+        World -> camera translation, mm.
+    """
+
+    name: str
+    width: int
+    height: int
+    K: np.ndarray = field(repr=False)
+    R: np.ndarray = field(repr=False)
+    t: np.ndarray = field(repr=False)
+
+    @property
+    def centre(self) -> np.ndarray:
+        """Optical centre in the world, (3,) mm."""
+        return -self.R.T @ self.t
+
+    def project(self, X: np.ndarray) -> np.ndarray:
+        """Project world points ``X`` (n, 3) mm to pixels (n, 2) ``(u, v)``."""
+        xc = X @ self.R.T + self.t
+        uvw = xc @ self.K.T
+        return uvw[:, :2] / uvw[:, 2:3]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "width": self.width, "height": self.height, "K": self.K.tolist(),
+                "dist": [0.0] * 5, "R": self.R.tolist(), "t": self.t.tolist()}
+
+
+def _look_at(centre: np.ndarray, roll: float) -> tuple[np.ndarray, np.ndarray]:
+    """World -> camera ``R`` (3, 3), ``t`` (3,) mm for a camera at ``centre`` looking at the origin.
+
+    OpenCV axes: z forward, x right, y down; ``roll`` (rad) turns the camera about z.
+    """
+    z = -centre / np.linalg.norm(centre)
+    up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.95 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    c, s = math.cos(roll), math.sin(roll)
+    x, y = c * x + s * y, -s * x + c * y
+    R = np.stack([x, y, z])
+    return R, -R @ centre
+
+
+def fibonacci_rig(
+    n: int = 16, *, radius_mm: float = 400.0, width: int = 1024, height: int = 1024, focal_px: float = 4000.0, seed: int = 7
+) -> list[Camera]:
+    """``n`` cameras on a golden-spiral sphere of ``radius_mm``, looking at the origin.
+
+    Each camera gets a seeded random roll about its optical axis. The principal point is
+    the image centre ``((width - 1) / 2, (height - 1) / 2)`` (pixel (0, 0) is a centre).
+    """
+    rng = np.random.default_rng(seed)
+    golden = math.pi * (3.0 - math.sqrt(5.0))
+    K = np.array([[focal_px, 0.0, (width - 1) / 2.0], [0.0, focal_px, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    cams = []
+    for i in range(n):
+        zc = 1.0 - (2.0 * i + 1.0) / n
+        r = math.sqrt(1.0 - zc * zc)
+        d = np.array([r * math.cos(golden * i), r * math.sin(golden * i), zc])
+        R, t = _look_at(radius_mm * d, rng.uniform(-math.pi, math.pi))
+        cams.append(Camera(f"cam{i:02d}", width, height, K.copy(), R, t))
+    return cams
+
+
+# --------------------------------------------------------------------------- exact silhouette rendering
+
+
+def silhouette(mesh: trimesh.Trimesh, cam: Camera) -> shapely.Geometry:
+    """Exact silhouette of a closed mesh in the image of ``cam``: a (multi)polygon in pixels.
+
+    The silhouette of a closed mesh is the union of the projections of its faces that
+    face the camera (every ray that meets the solid enters it through such a face), so
+    back faces are skipped. Holes (seeing through a bore) are kept.
+    """
+    tri = mesh.triangles  # (f, 3, 3) world mm
+    to_cam = cam.centre - tri[:, 0]
+    front = np.einsum("ij,ij->i", mesh.face_normals, to_cam) > 0.0
+    tri = tri[front]
+    uv = cam.project(tri.reshape(-1, 3)).reshape(-1, 3, 2)
+    a = uv[:, 1] - uv[:, 0]
+    b = uv[:, 2] - uv[:, 0]
+    keep = np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]) > 1e-12  # edge-on faces add no area
+    ring = np.concatenate([uv[keep], uv[keep][:, :1]], axis=1)  # (k, 4, 2) closed rings
+    union = shapely.union_all(shapely.polygons(ring))
+    # Rounding in the union leaves sliver "holes" of ~1e-15 px^2 along shared edges; they
+    # are not geometry (and GEOS' rectangle clipper rejects them), real holes are >> 1 px^2.
+    polys = []
+    for p in shapely.get_parts(union):
+        holes = [r for r in p.interiors if shapely.Polygon(r).area > HOLE_MIN_PX2]
+        polys.append(shapely.Polygon(p.exterior, holes))
+    return shapely.MultiPolygon(polys) if len(polys) > 1 else polys[0]
+
+
+def coverage(geom: shapely.Geometry, width: int, height: int, tile: int = 16) -> np.ndarray:
+    """Exact area coverage of each pixel by ``geom`` (pixel coordinates, CONTRACT convention).
+
+    Works on the bounding box of ``geom`` only, in ``tile`` x ``tile`` blocks: blocks that
+    miss the boundary are wholly in or out; in the others the area of (pixel box ∩ geom)
+    is computed exactly with vectorised shapely.
+
+    Returns
+    -------
+    (height, width) float64
+        Fraction of each pixel's area inside ``geom``, in [0, 1].
+    """
+    cov = np.zeros((height, width))
+    if geom.is_empty:
+        return cov
+    minx, miny, maxx, maxy = geom.bounds
+    j0, j1 = max(math.floor(minx + 0.5), 0), min(math.floor(maxx + 0.5), width - 1)
+    i0, i1 = max(math.floor(miny + 0.5), 0), min(math.floor(maxy + 0.5), height - 1)
+    if j1 < j0 or i1 < i0:
+        return cov
+    TJ, TI = (g.ravel() for g in np.meshgrid(np.arange(j0, j1 + 1, tile), np.arange(i0, i1 + 1, tile)))
+    TJe, TIe = np.minimum(TJ + tile, j1 + 1), np.minimum(TI + tile, i1 + 1)  # exclusive ends
+    x0, x1, y0, y1 = TJ - 0.5, TJe - 0.5, TI - 0.5, TIe - 0.5
+    boundary = geom.boundary
+    shapely.prepare(boundary)
+    shapely.prepare(geom)
+    on_edge = shapely.intersects(boundary, shapely.box(x0, y0, x1, y1))
+    full = ~on_edge & shapely.contains_xy(geom, (x0 + x1) / 2, (y0 + y1) / 2)
+    for k in np.flatnonzero(full):
+        cov[TI[k]:TIe[k], TJ[k]:TJe[k]] = 1.0
+    pieces, jj, ii = [], [], []
+    for k in np.flatnonzero(on_edge):
+        # Clip to the block first so each pixel intersection works on a small polygon.
+        piece = shapely.clip_by_rect(geom, x0[k], y0[k], x1[k], y1[k])
+        J, I = np.meshgrid(np.arange(TJ[k], TJe[k]), np.arange(TI[k], TIe[k]))
+        pieces.append(np.full(J.size, piece, dtype=object))
+        jj.append(J.ravel())
+        ii.append(I.ravel())
+    if pieces:
+        jj, ii = np.concatenate(jj), np.concatenate(ii)
+        boxes = shapely.box(jj - 0.5, ii - 0.5, jj + 0.5, ii + 0.5)
+        cov[ii, jj] = np.clip(shapely.area(shapely.intersection(np.concatenate(pieces), boxes)), 0.0, 1.0)
+    return cov
+
+
+def to_image(cov: np.ndarray, condition: str, polarity: str, rng: np.random.Generator) -> np.ndarray:
+    """8-bit image of a silhouette coverage map under an imaging ``condition``.
+
+    Parameters
+    ----------
+    cov : (h, w) float
+        Area coverage in [0, 1].
+    condition : {"grey", "binary", "strong"}
+        ``grey``: anti-aliased (linear in coverage), Gaussian noise sigma 2;
+        ``binary``: hard edges (coverage >= 0.5), noise sigma 2;
+        ``strong``: anti-aliased, sigma 6, and 1 % of the pixels replaced by 0 or 255.
+    polarity : {"dark-object", "bright-object"}
+
+    Returns
+    -------
+    (h, w) uint8
+    """
+    bg, fg = LEVELS_DARK if polarity == "dark-object" else LEVELS_DARK[::-1]
+    if condition == "binary":
+        cov = (cov >= 0.5).astype(float)
+    sigma = {"grey": 2.0, "binary": 2.0, "strong": 6.0}[condition]
+    img = bg + (fg - bg) * cov + rng.normal(0.0, sigma, cov.shape)
+    if condition == "strong":
+        hit = rng.random(cov.shape) < 0.01
+        img[hit] = np.where(rng.random(int(hit.sum())) < 0.5, 0.0, 255.0)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+# --------------------------------------------------------------------------- capture folders
+
+
+def footprint_mm(cams: list[Camera], centre: np.ndarray) -> float:
+    """Mean pixel footprint at ``centre`` (3,) mm: camera distance / focal length, mm per px."""
+    return float(np.mean([np.linalg.norm(c.centre - centre) / c.K[0, 0] for c in cams]))
+
+
+def make_capture(
+    root: str | Path,
+    part: str,
+    condition: str = "grey",
+    defect: str = "none",
+    *,
+    seed: int = 0,
+    polarity: str = "dark-object",
+    name: str | None = None,
+    rig_seed: int = 7,
+) -> dict[str, Any]:
+    """Write one capture folder and its truth (outside the capture folder).
+
+    Parameters
+    ----------
+    root : path
+        Output root; ``root/captures/<name>/`` and ``root/truth/<name>/`` are written.
+    part : str
+        One of :data:`PARTS`.
+    condition : str
+        One of :data:`CONDITIONS`.
+    defect : str
+        One of :data:`DEFECTS`.
+    seed : int
+        Seeds the pose, the defect and the image noise.
+
+    Returns
+    -------
+    dict
+        ``capture`` (folder), ``reference`` (STL), ``true_mesh`` (PLY), ``truth`` (JSON), ``name``
+        and ``render_s`` (seconds spent rendering).
+    """
+    if condition not in CONDITIONS:
+        raise ValueError(f"unknown condition {condition!r} (known: {', '.join(CONDITIONS)})")
+    name = name or f"{part}-{condition}-{defect}-s{seed}"
+    root = Path(root)
+    cap, tdir = root / "captures" / name, root / "truth" / name
+    (cap / "images").mkdir(parents=True, exist_ok=True)
+    tdir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+
+    nominal = make_part(part)
+    true_part, defect_info = apply_defect(nominal, defect, rng)
+    pose = random_pose(rng)
+    world = true_part.copy()
+    world.apply_transform(pose)
+    cams = fibonacci_rig(seed=rig_seed)
+
+    t0 = time.perf_counter()
+    for cam in cams:
+        sil = silhouette(world, cam)
+        cov = coverage(sil, cam.width, cam.height)
+        # Exactness guard: the pixel areas add up to the silhouette's area inside the image.
+        inside = shapely.clip_by_rect(sil, -0.5, -0.5, cam.width - 0.5, cam.height - 0.5).area
+        if abs(cov.sum() - inside) > 1e-6:
+            raise AssertionError(f"{name} {cam.name}: coverage sum {cov.sum():.9f} != silhouette area {inside:.9f}")
+        if not cv2.imwrite(str(cap / "images" / f"{cam.name}.png"), to_image(cov, condition, polarity, rng)):
+            raise OSError(f"could not write {cap / 'images' / cam.name}.png")
+    render_s = time.perf_counter() - t0
+
+    (cap / "rig.json").write_text(json.dumps({"units": "mm", "cameras": [c.to_json() for c in cams]}, indent=1))
+    (cap / "capture.json").write_text(json.dumps({
+        "part_id": part, "timestamp": "2025-01-01T00:00:00+00:00", "polarity": polarity,
+        "writer": "tests/acceptance/foreign_capture.py", "condition": condition,
+    }, indent=1))
+    nominal.export(tdir / "reference.stl")
+    world.export(tdir / "true_world.ply")
+    # Exact float64 vertices as well: the PLY is what a viewer opens, the npz what we measure on.
+    np.savez(tdir / "true_world.npz", vertices=world.vertices, faces=world.faces)
+    truth = {
+        "part": part, "condition": condition, "defect": defect_info, "seed": seed, "polarity": polarity,
+        "pose": pose.tolist(), "footprint_mm": footprint_mm(cams, pose[:3, 3]),
+        "rig": {"cameras": len(cams), "radius_mm": 400.0, "focal_px": 4000.0, "size_px": [1024, 1024], "seed": rig_seed},
+    }
+    (tdir / "truth.json").write_text(json.dumps(truth, indent=1))
+    return {"name": name, "capture": cap, "reference": tdir / "reference.stl", "true_mesh": tdir / "true_world.npz",
+            "truth": tdir / "truth.json", "render_s": render_s}
+
+
+# --------------------------------------------------------------------------- self-check
+
+
+def self_check(verbose: bool = False) -> float:
+    """Check the renderer's exactness on polygons whose pixel areas are known.
+
+    Returns the largest error found; raises ``AssertionError`` above 1e-6.
+    """
+    worst = 0.0
+    W = H = 64
+    # Unit square at a sub-pixel offset: four known partial areas, sum 1.
+    sq = shapely.box(10.3, 20.7, 11.3, 21.7)
+    c = coverage(sq, W, H)
+    want = np.zeros((H, W))
+    want[21, 10], want[21, 11], want[22, 10], want[22, 11] = 0.2 * 0.8, 0.8 * 0.8, 0.2 * 0.2, 0.8 * 0.2
+    worst = max(worst, np.abs(c - want).max())
+    # Triangle and a polygon with a hole: coverage sums to the area.
+    tri = shapely.Polygon([(3.21, 4.87), (50.13, 9.4), (20.5, 58.02)])
+    ring = shapely.Point(31.7, 30.2).buffer(20.3, 64).difference(shapely.Point(33.1, 29.9).buffer(7.7, 64))
+    for g in (tri, ring):
+        worst = max(worst, abs(coverage(g, W, H).sum() - g.area))
+    # Half plane x <= 10.3: column 10 is 0.8 covered; slanted edge through a pixel: trapezoid.
+    half = shapely.box(-5.0, -5.0, 10.3, 70.0)
+    c = coverage(half, W, H)
+    worst = max(worst, np.abs(c[:, 10] - 0.8).max(), np.abs(c[:, :10] - 1.0).max(), np.abs(c[:, 11:]).max())
+    slant = shapely.Polygon([(-5.0, -5.0), (30.0 + 0.25 * 35, -5.0), (30.0 - 0.25 * 40, 70.0), (-5.0, 70.0)])
+    c = coverage(slant, W, H)  # edge x = 30 - 0.25 (y - 30): in row 30, x spans [29.875, 30.125]
+    worst = max(worst, abs(c[30, 30] - 0.5), abs(c[30, 29] - 1.0), abs(c[30, 31]))
+    if verbose:
+        print(f"renderer self-check: worst error {worst:.2e}")
+    assert worst < 1e-6, worst
+    return worst
+
+
+# --------------------------------------------------------------------------- CLI
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("selfcheck", help="check the renderer's exactness")
+    w = sub.add_parser("write", help="write one capture folder + truth")
+    w.add_argument("root", type=Path)
+    w.add_argument("--part", choices=sorted(PARTS), required=True)
+    w.add_argument("--condition", choices=CONDITIONS, default="grey")
+    w.add_argument("--defect", choices=DEFECTS, default="none")
+    w.add_argument("--polarity", choices=("dark-object", "bright-object"), default="dark-object")
+    w.add_argument("--seed", type=int, default=0)
+    w.add_argument("--name")
+    args = ap.parse_args(argv)
+    if args.cmd == "selfcheck":
+        self_check(verbose=True)
+        return 0
+    res = make_capture(args.root, args.part, args.condition, args.defect, seed=args.seed,
+                       polarity=args.polarity, name=args.name)
+    print(json.dumps({k: str(v) for k, v in res.items()}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,206 @@
+"""Acceptance matrix: foreign captures x conditions through the real ``inspector run``.
+
+For each part and condition: write a capture with ``foreign_capture.py`` (another program,
+CONTRACT folder), inspect it with ``inspector run recipes/default.toml --capture DIR --out OUT
+--reference REF.stl -q`` in a subprocess, measure the BCPS points against the true surface
+with ``measure.py``, and judge them against the requirement's bar for the condition.
+
+Writes a markdown table to ``--out-md`` (and prints it); the full metrics go to
+``WORK/matrix.json``. Exit status: 0 all bars met, 1 a bar missed, 2 a run failed
+(``inspector run`` exit status other than 0/1, or a capture with verdict "error").
+
+Usage::
+
+    .venv/bin/python tests/acceptance/run_matrix.py --out-md docs/acceptance.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
+
+import foreign_capture as fc  # noqa: E402
+import measure as ms  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_RECIPE = ROOT / "recipes" / "default.toml"
+
+
+def _find_inspector() -> Path:
+    """The ``inspector`` console script of the running interpreter's environment (else the repo's .venv)."""
+    for cand in (Path(sys.executable).parent / "inspector", ROOT / ".venv" / "bin" / "inspector"):
+        if cand.exists():
+            return cand
+    return Path("inspector")  # on PATH
+
+
+INSPECTOR = _find_inspector()
+
+
+@dataclass(frozen=True)
+class Case:
+    """One row of the matrix: a part under an imaging condition, with or without a defect."""
+
+    label: str      # condition as shown in the table
+    condition: str  # foreign_capture.CONDITIONS
+    defect: str     # foreign_capture.DEFECTS
+    mean_px: float  # bar on the mean distance, pixel footprints
+    p99_px: float | None = None  # bar on the 99th percentile, when the requirement sets one
+
+
+#: The requirement's conditions and bars (issue: anti-aliased sigma 2 -> mean 0.1 / p99 0.5 px,
+#: binary -> mean 0.25 px, sigma 6 + 1 % impulses -> mean 0.3 px).
+CASES = (
+    Case("grey, scale 1.00", "grey", "none", 0.1, 0.5),
+    Case("grey, scale 0.98", "grey", "scale", 0.1, 0.5),
+    Case("grey, bump removed", "grey", "bump_removed", 0.1, 0.5),
+    Case("binary, scale 1.00", "binary", "none", 0.25),
+    Case("strong, scale 1.00", "strong", "none", 0.3),
+)
+#: Backlit (dark object) for most parts, the reverse for one, to exercise both polarities.
+POLARITY = {"torus": "dark-object", "hexnut": "dark-object", "shaft": "bright-object", "housing": "dark-object"}
+
+
+def inspect(capture: Path, reference: Path, out: Path, recipe: Path = DEFAULT_RECIPE,
+            inspector: Path = INSPECTOR, timeout_s: float = 900.0) -> tuple[int, str, float]:
+    """Run ``inspector run`` on one capture folder.
+
+    Returns
+    -------
+    code : int
+        Exit status (0 pass, 1 out of tolerance; anything else is a failure of the run).
+    stderr : str
+        Last lines of stderr (for the report when the run failed).
+    seconds : float
+        Wall time of the subprocess.
+    """
+    cmd = [str(inspector), "run", str(recipe), "--capture", str(capture), "--out", str(out),
+           "--reference", str(reference), "-q"]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+    return proc.returncode, "\n".join(proc.stderr.strip().splitlines()[-5:]), time.perf_counter() - t0
+
+
+def judge(case: Case, m: dict[str, Any]) -> tuple[bool, str]:
+    """Whether measurement ``m`` meets the bar of ``case``; and the bar as text."""
+    bar = f"mean <= {case.mean_px}" + (f", p99 <= {case.p99_px}" if case.p99_px is not None else "")
+    if not m.get("n_points"):
+        return False, bar
+    ok = m["mean_px"] <= case.mean_px and (case.p99_px is None or m["p99_px"] <= case.p99_px)
+    return ok, bar
+
+
+def run_case(work: Path, part: str, case: Case, seed: int) -> dict[str, Any]:
+    """Write, inspect and measure one capture; return its row (all metrics + status)."""
+    made = fc.make_capture(work, part, case.condition, case.defect, seed=seed, polarity=POLARITY[part])
+    out = work / "out"
+    code, err, run_s = inspect(made["capture"], made["reference"], out)
+    row: dict[str, Any] = {"part": part, "condition": case.label, "seed": seed, "exit": code,
+                           "render_s": made["render_s"], "run_s": run_s, "capture": made["name"]}
+    result_dir = out / made["name"]
+    if (result_dir / "result.json").exists():
+        row.update(ms.measure(result_dir, made["truth"].parent))
+    else:
+        row.update({"verdict": "missing", "error": err, "n_points": 0})
+    row["run_failed"] = code not in (0, 1) or row.get("verdict") in ("error", "missing")
+    if row["run_failed"] and not row.get("error"):
+        row["error"] = err
+    row["ok"], row["bar"] = judge(case, row)
+    return row
+
+
+def _f(x: float | None, nd: int = 3) -> str:
+    return "-" if x is None else f"{x:.{nd}f}"
+
+
+def to_markdown(rows: list[dict[str, Any]], total_s: float) -> str:
+    """The acceptance report: one table row per capture, then notes on failed runs."""
+    expect = {"grey, scale 0.98": "fail", "grey, bump removed": "fail"}
+    lines = [
+        "# Foreign-capture acceptance (BCPS accuracy)",
+        "",
+        "Captures written by `tests/acceptance/foreign_capture.py` (not the product's simulator):",
+        "parts the product has never seen (torus R11/r4, hex nut 30 A/F with Ø14 bore, stepped shaft",
+        "with cross hole and flat, housing with pocket and two holes), 16 pinhole cameras on a",
+        "golden-spiral sphere of radius 400 mm, 1024x1024 px, f = 4000 px (footprint ~0.1 mm/px),",
+        "exact area-coverage silhouettes, 8-bit. Inspected with `inspector run recipes/default.toml",
+        "--reference <nominal STL> -q`; distances are exact point-to-mesh distances from",
+        "`bcps_points.ply` to the true (posed, defective) mesh, in pixel footprints.",
+        "",
+        "Conditions: grey = anti-aliased, noise sigma 2; binary = hard edges, sigma 2;",
+        "strong = anti-aliased, sigma 6 + 1 % impulse pixels. Defects (grey only): uniform scale 0.98",
+        "about the part centre; a sphere of radius 2.5 mm removed at a convex-hull surface point.",
+        f"Polarity: {', '.join(f'{k} {v}' for k, v in POLARITY.items())}.",
+        "",
+        "| part | condition | n points | mean px | p99 px | max px | pose misfit mm | verdict (expected) | bar | result |",
+        "|---|---|---:|---:|---:|---:|---:|---|---|---|",
+    ]
+    for r in rows:
+        verdict = f"{r.get('verdict')} ({expect.get(r['condition'], 'pass')})"
+        pose = r.get("pose", {}).get("mean_mm")
+        res = "RUN FAILED" if r["run_failed"] else ("pass" if r["ok"] else "**FAIL**")
+        lines.append(f"| {r['part']} | {r['condition']} | {r.get('n_points', 0)} | {_f(r.get('mean_px'))} | "
+                     f"{_f(r.get('p99_px'))} | {_f(r.get('max_px'), 2)} | {_f(pose, 4)} | {verdict} | {r['bar']} | {res} |")
+    n_ok = sum(r["ok"] and not r["run_failed"] for r in rows)
+    lines += [
+        "",
+        "Pose misfit: mean distance from the nominal surface placed by result.json's pose to the nominal",
+        "surface placed by the true pose (insensitive to rotational symmetries of the torus and the nut).",
+        "The housing's pocket never shows in a silhouette, so its pocket-down pose is indistinguishable",
+        "from the true one: a misfit of ~0.33 mm there is that ambiguity, not an alignment error.",
+        "",
+        f"{n_ok}/{len(rows)} rows meet their bar. Matrix wall time {total_s:.0f} s "
+        f"({platform.node()}, Python {platform.python_version()}).", "",
+    ]
+    failed = [r for r in rows if r["run_failed"]]
+    if failed:
+        lines += ["Failed runs:", ""] + [f"- {r['part']} / {r['condition']}: exit {r['exit']}, {r.get('error')}"
+                                         for r in failed] + [""]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--work", type=Path, default=ROOT / "out" / "acceptance", help="captures, truth and results")
+    ap.add_argument("--out-md", type=Path, default=None, help="write the markdown table here")
+    ap.add_argument("--parts", nargs="+", default=list(fc.PARTS), choices=list(fc.PARTS))
+    ap.add_argument("--cases", nargs="+", type=int, default=list(range(len(CASES))),
+                    help=f"indices into CASES (0..{len(CASES) - 1})")
+    ap.add_argument("--seed", type=int, default=1000, help="base seed; each row adds its own offset")
+    args = ap.parse_args(argv)
+
+    fc.self_check()
+    t0 = time.perf_counter()
+    rows = []
+    for p in args.parts:
+        for c in args.cases:
+            seed = args.seed + 100 * list(fc.PARTS).index(p) + c
+            row = run_case(args.work, p, CASES[c], seed)
+            rows.append(row)
+            print(f"{p:8s} {CASES[c].label:20s} exit {row['exit']} verdict {row.get('verdict')}: "
+                  f"mean {_f(row.get('mean_px'))} px, p99 {_f(row.get('p99_px'))} px "
+                  f"[render {row['render_s']:.1f} s, run {row['run_s']:.1f} s]", file=sys.stderr, flush=True)
+    total = time.perf_counter() - t0
+    md = to_markdown(rows, total)
+    args.work.mkdir(parents=True, exist_ok=True)
+    (args.work / "matrix.json").write_text(json.dumps({"total_s": total, "rows": rows}, indent=1, default=str))
+    if args.out_md is not None:
+        args.out_md.parent.mkdir(parents=True, exist_ok=True)
+        args.out_md.write_text(md)
+    print(md)
+    if any(r["run_failed"] for r in rows):
+        return 2
+    return 0 if all(r["ok"] for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
