@@ -70,9 +70,10 @@ Surface points and normals
     (0.05 mm at most) from the exact visual hull at any voxel from 0.5 to 0.1 mm, and the
     normals 4.4 deg (median) from the exact hull's.
 
-    With the numba backend the finest level is tested together with the points: each
-    boundary cell of the level above has its 8 children classified and Newton-projected
-    at once, the hull function at their centres coming from the cell tests.
+    With the numba backend the last two levels are tested together with the points: each
+    cell of the level above the finest is classified and, when on the boundary, has its 8
+    children classified and Newton-projected at once, the hull function at their centres
+    coming from the cell tests.
 
 Display mesh
     Marching cubes of ``f`` on a grid over the occupied cells. The sign of ``f`` on the
@@ -1097,8 +1098,8 @@ def _mesh(
         vol, exact, n_eval = jit.mesh_signs(stack, n, lo, mv, B, _LIP, _SLACK_PX)
         if not (vol.max() > 0.0):
             return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), dict(info, mesh_evaluated=n_eval)
-        cube, ii = jit.mesh_need(vol, exact)
-        ii = tuple(ii.T)
+        cube, m = jit.mesh_fill(stack, vol, exact, lo, mv)
+        n_eval += m
     else:
         vals, n_eval = _mesh_signs(views, n, lo, mv, B)
         if not (vals.max() > 0.0):
@@ -1110,11 +1111,11 @@ def _mesh(
         # each cube's last corner, (i + 1, j + 1, k + 1) for the cube at (i, j, k))
         cube = np.zeros(vol.shape, dtype=bool)
         cube[1:, 1:, 1:] = mixed
-    if len(ii[0]):
-        P = lo[:, None] + np.stack(ii) * mv
-        f = jit.f_all(stack, P.T)[0] if jit is not None else _f_all(views, P)[0]
-        vol[ii[0] + 1, ii[1] + 1, ii[2] + 1] = np.clip(f, -1e3, 1e3)
-        n_eval += len(f)
+        if len(ii[0]):
+            P = lo[:, None] + np.stack(ii) * mv
+            f = _f_all(views, P)[0]
+            vol[ii[0] + 1, ii[1] + 1, ii[2] + 1] = np.clip(f, -1e3, 1e3)
+            n_eval += len(f)
     info["mesh_evaluated"] = n_eval
     verts, faces, _, _ = marching_cubes(vol, level=0.0, spacing=(mv, mv, mv), mask=cube)
     verts = verts + (lo - mv)
@@ -1173,7 +1174,7 @@ def carve(
         ``coarse_mm``, ``occupied_bounds``, ``mesh_voxel_mm``, ``mesh_grid``,
         ``mesh_evaluated``, ``time_s`` (``carve``: distance transforms, bounds and cell
         tests; ``points``: Newton projection, with the numba backend together with the
-        finest level's cell tests (one pass); ``mesh``; ``total``, seconds); for an
+        cell tests of the last two levels (one pass); ``mesh``; ``total``, seconds); for an
         empty hull only ``n_points`` = 0 and ``empty_reason``.
     backend : {"auto", "numba", "numpy"}
         ``"numba"``: compiled kernels for the cell tests, the Newton points and the mesh
@@ -1301,9 +1302,30 @@ def carve(
         size = coarse / 2**level
         r = size * math.sqrt(3.0) / 2.0
         finest = level == levels
+        if jit is not None and level == levels - 1:
+            # the last two levels with the points, in one pass from this level's cells
+            tp = time.perf_counter()
+            cnt_f, lohi_f, X, N, f = jit.finest_points(
+                stack, cells, active, origin, voxel_mm, r, voxel_mm * math.sqrt(3.0) / 2.0, _LIP, _SLACK_PX, h,
+                use_parent
+            )
+            for k, (lv, sz) in enumerate(((level, size), (levels, voxel_mm))):
+                ls = level_stats[lv]
+                ls["evaluated"] += len(cells) if k == 0 else 8 * int(cnt_f[0, 2])
+                ls["carved"] += int(cnt_f[k, 0])
+                ls["inside"] += int(cnt_f[k, 1])
+                ls["boundary"] += int(cnt_f[k, 2])
+                if np.all(lohi_f[k, 1] > lohi_f[k, 0]):
+                    occ_lo = np.minimum(occ_lo, origin + lohi_f[k, 0] * sz)
+                    occ_hi = np.maximum(occ_hi, origin + lohi_f[k, 1] * sz)
+            pts_l.append(X)
+            nrm_l.append(N)
+            res_l.append(f)
+            t_points += time.perf_counter() - tp
+            continue
         if jit is not None:
-            status, act = jit.classify_cells(stack, cells, active, origin, size, r, _LIP, _SLACK_PX)
-            cnt = np.bincount(status, minlength=3)
+            status, act, bcount = jit.classify_cells(stack, cells, active, origin, size, r, _LIP, _SLACK_PX)
+            cnt = bcount.sum(axis=0)
             nb = int(cnt[2])
             ls = level_stats[level]
             ls["evaluated"] += len(cells)
@@ -1312,8 +1334,7 @@ def carve(
             ls["boundary"] += nb
             if cnt[1] == 0 and nb == 0:
                 continue
-            fuse = level == levels - 1  # the finest level goes with the points, from its parents
-            lohi, *rest = jit.gather(cells, act, status, nb, 1 if finest else (2 if fuse else 0), origin, size)
+            lohi, *rest = jit.gather(cells, act, status, bcount, 1 if finest else 0, origin, size)
             if np.all(lohi[1] > lohi[0]):
                 occ_lo = np.minimum(occ_lo, origin + lohi[0] * size)
                 occ_hi = np.maximum(occ_hi, origin + lohi[1] * size)
@@ -1323,24 +1344,6 @@ def carve(
                 tp = time.perf_counter()
                 A, Pc, B = rest
                 X, N, f = jit.refine_points(stack, A, Pc if use_parent else None, B, voxel_mm, h)
-                pts_l.append(X)
-                nrm_l.append(N)
-                res_l.append(f)
-                t_points += time.perf_counter() - tp
-            elif fuse:
-                tp = time.perf_counter()
-                A, B = rest
-                cnt_f, lohi_f, X, N, f = jit.finest_points(
-                    stack, A, B, origin, voxel_mm, voxel_mm * math.sqrt(3.0) / 2.0, _LIP, _SLACK_PX, h, use_parent
-                )
-                ls = level_stats[levels]
-                ls["evaluated"] += 8 * len(A)
-                ls["carved"] += int(cnt_f[0])
-                ls["inside"] += int(cnt_f[1])
-                ls["boundary"] += int(cnt_f[2])
-                if np.all(lohi_f[1] > lohi_f[0]):
-                    occ_lo = np.minimum(occ_lo, origin + lohi_f[0] * voxel_mm)
-                    occ_hi = np.maximum(occ_hi, origin + lohi_f[1] * voxel_mm)
                 pts_l.append(X)
                 nrm_l.append(N)
                 res_l.append(f)
