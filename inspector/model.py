@@ -290,6 +290,9 @@ class BcpsPoints:
         Length of the candidate segment on that ray, mm.
     method : str
         ``"ray"`` or ``"surface"``.
+    size : SizePrior or None
+        The part's best-fit size model the selection was made against
+        (:mod:`inspector.kernels.prior`); None: the nominal reference.
     """
 
     points: np.ndarray
@@ -298,6 +301,7 @@ class BcpsPoints:
     pixel: np.ndarray
     segment_mm: np.ndarray
     method: str
+    size: Any = None
 
 
 @dataclass(frozen=True)

@@ -46,6 +46,9 @@ def _summary(ctx: InspectionContext) -> dict[str, Any]:
             "fitness": float(ctx.alignment.fitness),
             "rmse_mm": float(ctx.alignment.rmse_mm),
         }
+    if ctx.bcps is not None and ctx.bcps.size is not None:
+        # What the selection was made against: the part's best-fit size (scale 0.98: 2 % small).
+        stats["size_fit"] = ctx.bcps.size.to_json()
     if ctx.evaluation is not None:
         stats.update(ctx.evaluation.stats)
     if ctx.capture.truth is not None:

@@ -238,6 +238,7 @@ def select_on_rays(
     t_range: tuple[np.ndarray, np.ndarray] | None = None,
     mesh: object | None = None,
     pose: np.ndarray | None = None,
+    sd_scale: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """BCPS on exact rays (the ``ray`` method).
 
@@ -291,6 +292,10 @@ def select_on_rays(
         ``stack``, the compiled search of :mod:`inspector.kernels.bcps_jit` runs the whole
         selection (same result); rays it flags (a distance outside the index's band)
         take the numpy path with ``sd_fn``.
+    sd_scale : float
+        With ``mesh``: ``pose`` may be the affine placement of a scaled reference
+        (:meth:`inspector.kernels.prior.SizePrior.placement`) whose signed distance is
+        ``sd_scale * mesh(pose^-1 x)``; ``sd_fn`` must be that function.
 
     Returns
     -------
@@ -333,7 +338,7 @@ def select_on_rays(
         tb, vb, sb, seg, oob = bcps_jit.select_rays(
             origin, dirs[hit], t0[hit], t1[hit], stack, skip, mesh, pose, step_mm=step_mm,
             refine_levels=refine_levels, refine_samples=refine_samples, tolerance_px=tolerance_px,
-            accept_px=accept_px, weight=weight, lip=lip, bounds=bounds,
+            accept_px=accept_px, weight=weight, lip=lip, bounds=bounds, sd_scale=sd_scale,
         )
         ok = ~oob & (vb <= accept_px) & np.isfinite(sb)
         sel = hit[ok]

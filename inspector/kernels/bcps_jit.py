@@ -81,20 +81,18 @@ def _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, limit, s
 
 
 @numba.njit(cache=True, inline="always")
-def _sd(x0, x1, x2, Rp, tp, tri, pn, lo, h, dims, start, items, dc):
-    """Signed distance of a world point to the reference placed by (Rp, tp)."""
-    a = x0 - tp[0]
-    b = x1 - tp[1]
-    c = x2 - tp[2]
-    px = Rp[0, 0] * a + Rp[1, 0] * b + Rp[2, 0] * c
-    py = Rp[0, 1] * a + Rp[1, 1] * b + Rp[2, 1] * c
-    pz = Rp[0, 2] * a + Rp[1, 2] * b + Rp[2, 2] * c
-    return signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc)
+def _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc):
+    """Signed distance of a world point to the (scaled) reference: ``sc * sd_ref(Ai x)``
+    with ``Ai`` (3, 4) the world -> reference map."""
+    px = Ai[0, 0] * x0 + Ai[0, 1] * x1 + Ai[0, 2] * x2 + Ai[0, 3]
+    py = Ai[1, 0] * x0 + Ai[1, 1] * x1 + Ai[1, 2] * x2 + Ai[1, 3]
+    pz = Ai[2, 0] * x0 + Ai[2, 1] * x1 + Ai[2, 2] * x2 + Ai[2, 3]
+    return sc * signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border, skip, lc,
-                   tri, pn, lo, h, dims, start, items, dc, Rp, tp,
+                   tri, pn, lo, h, dims, start, items, dc, Ai, sc,
                    step, levels, offsets, tol, accept, weight, lip,
                    t_out, v_out, s_out, seg_out, oob_out):
     M = dirs.shape[0]
@@ -135,7 +133,7 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
             v, first = _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lc, grec, trec)
             if v > eps:
                 continue
-            s = _sd(x0, x1, x2, Rp, tp, tri, pn, lo, h, dims, start, items, dc)
+            s = _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc)
             if np.isnan(s):
                 oob = True
                 continue
@@ -177,7 +175,7 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
                 pen = weight * max(v - tol, 0.0)
                 if bound + pen >= cb:
                     continue
-                s = _sd(x0, x1, x2, Rp, tp, tri, pn, lo, h, dims, start, items, dc)
+                s = _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc)
                 if np.isnan(s):
                     oob = True
                     continue
@@ -230,7 +228,7 @@ def camera_speed(stack, bounds: np.ndarray) -> np.ndarray:
 
 
 def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refine_levels, refine_samples,
-                tolerance_px, accept_px, weight, lip, bounds):
+                tolerance_px, accept_px, weight, lip, bounds, sd_scale=1.0):
     """Run the fused search on rays ``origin + t * dirs`` (M, 3) over ``[t0, t1]`` (M,).
 
     Parameters are those of :func:`inspector.kernels.bcps.select_on_rays` (``weight`` in
@@ -238,7 +236,9 @@ def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refin
     ``bounds`` (2, 3) the box of the rays' samples, mm; ``stack`` a
     :class:`~inspector.kernels.hull_jit.CameraStack`, ``mesh`` a
     :class:`~inspector.kernels.meshdist.MeshDistance` of the reference and ``pose`` (4, 4)
-    reference -> world.
+    reference -> world, or any invertible affine placement: the signed distance of a world
+    point ``x`` is then ``sd_scale * mesh(pose^-1 x)`` (a scaled reference,
+    :class:`~inspector.kernels.prior.SizePrior`; still 1-Lipschitz).
 
     Returns
     -------
@@ -252,13 +252,13 @@ def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refin
     out = [np.empty(M) for _ in range(4)]
     oob = np.zeros(M, dtype=np.bool_)
     if M:
-        pose = np.asarray(pose, dtype=np.float64)
+        Ai = np.ascontiguousarray(np.linalg.inv(np.asarray(pose, dtype=np.float64))[:3])
         _select_kernel(
             np.ascontiguousarray(origin, dtype=np.float64), np.ascontiguousarray(dirs, dtype=np.float64),
             np.ascontiguousarray(t0, dtype=np.float64), np.ascontiguousarray(t1, dtype=np.float64),
             stack.K, stack.R, stack.t, stack.dist, stack.maps, stack.sizes, stack.open_border, int(skip),
             MAP_LIPSCHITZ * camera_speed(stack, np.asarray(bounds, float)),
-            *mesh.args(), np.ascontiguousarray(pose[:3, :3]), np.ascontiguousarray(pose[:3, 3]),
+            *mesh.args(), Ai, float(sd_scale),
             float(step_mm), int(refine_levels), np.linspace(-1.0, 1.0, int(refine_samples)), float(tolerance_px),
             float(accept_px), float(weight), float(lip), *out, oob,
         )

@@ -130,21 +130,21 @@ def test_capture_folder_follows_the_contract(tmp_path):
 # --------------------------------------------------------------------------- slow: the real product
 
 
-#: Known limit of the best-case rule, measured (docs/acceptance.md): scaled down, the hex
-#: nut's bore and countersinks shrink too, which is *excess* material there, and excess can
-#: hide in the hull's bulges; points on those rims land 0.5-1.3 px off the true surface.
-#: Strict: the day it passes, this marker must go.
-_SCALED_BORE = pytest.mark.xfail(strict=True, reason="scale 0.98 makes the bore excess material (method limit)")
+#: Measured, not understood yet: on this seed the scaled hex nut still misses the bar (mean
+#: 0.115 px, p99 1.08 px with the size prior fitted at 0.9806), while seed 1101 of the matrix
+#: meets it (0.054 / 0.31). Strict: the day it passes, this marker must go.
+_HEXNUT_SEED_11 = pytest.mark.xfail(strict=True, reason="hex nut at scale 0.98, seed 11: p99 1.08 px (open)")
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("part, case_index, seed", [
-    pytest.param("hexnut", 1, 11, marks=_SCALED_BORE),   # grey, scale 0.98
+    ("hexnut", 1, 1101),  # grey, scale 0.98: bore and countersinks shrink too (excess there)
+    pytest.param("hexnut", 1, 11, marks=_HEXNUT_SEED_11),
     ("torus", 3, 12),    # binary
     ("housing", 2, 13),  # grey, bump removed
     ("shaft", 4, 14),    # strong noise + impulses (bright object)
     ("shaft", 0, 1200),  # grey, nominal: was turned 3 degrees about its axis (false reject)
-], ids=["hexnut-grey-scale098", "torus-binary", "housing-grey-bump", "shaft-strong", "shaft-grey-nominal"])
+], ids=["hexnut-grey-scale098", "hexnut-grey-scale098-seed11", "torus-binary", "housing-grey-bump", "shaft-strong", "shaft-grey-nominal"])
 def test_bcps_accuracy_on_a_foreign_capture(tmp_path, part, case_index, seed):
     case = rm.CASES[case_index]
     row = rm.run_case(tmp_path, part, case, seed)
