@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from inspector.kernels import camera as camk
+from inspector.kernels.prior import SizePrior
 
 __all__ = [
     "Camera",
@@ -301,7 +302,7 @@ class BcpsPoints:
     pixel: np.ndarray
     segment_mm: np.ndarray
     method: str
-    size: Any = None
+    size: SizePrior | None = None
 
 
 @dataclass(frozen=True)

@@ -81,19 +81,13 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
     rig = ctx.capture.rig
     views = _views(ctx, cache)
     bounds = _bounds(ctx, p.margin_mm)
-    sized = prior is not None and not prior.is_identity
-    if sized:
-        place = prior.placement(pose)
-        inv = np.linalg.inv(place)
-        scale = prior.scale
+    prior = prior if prior is not None else SizePrior()
+    sized = not prior.is_identity
+    place = prior.placement(pose)  # = pose for the nominal reference
+    inv = np.linalg.inv(place)
 
-        def sd_fn(X: np.ndarray) -> np.ndarray:
-            return scale * ref.distance(X @ inv[:3, :3].T + inv[:3, 3])
-    else:
-        place, scale = pose, 1.0
-
-        def sd_fn(X: np.ndarray) -> np.ndarray:
-            return ref.signed_distance(X, pose)
+    def sd_fn(X: np.ndarray) -> np.ndarray:
+        return prior.scale * ref.distance(X @ inv[:3, :3].T + inv[:3, 3])
     recon = ctx.need("reconstruction", "bcps")
     out = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
     ranges = cache.setdefault("ranges", {})
@@ -116,7 +110,7 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
             origin, dirs[sub], views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm,
             refine_levels=cache.get("refine_levels", p.refine_levels), tolerance_px=p.tolerance_px, accept_px=p.accept_px,
             violation_weight=p.violation_weight, t_range=(r0[sub], r1[sub]),
-            mesh=ref.distance if cache.get("stack") is not None else None, pose=place, sd_scale=scale,
+            mesh=ref.distance if cache.get("stack") is not None else None, pose=place, sd_scale=prior.scale,
         )
         out["points"].append(pts[ok])
         out["deviation"].append(ref.signed_distance(pts[ok], pose) if sized else dev[ok])
@@ -177,56 +171,54 @@ def _run(select):
         alignment = ctx.need("alignment", "bcps")
         ref = ctx.need("reference", "bcps")
         cache: dict = {"backend": getattr(p, "backend", "numba")}
-        if p.refine_pose and getattr(p, "refine_levels", 0) > 1:
-            # The first selection only feeds the pose fit, which averages thousands of
-            # points: a third of the rays and one refinement level less (25 um steps)
-            # are enough there.
-            cache["refine_levels"] = p.refine_levels - 1
-        if p.refine_pose:
+        if not p.refine_pose:
+            return ctx.evolve(bcps=select(ctx, alignment.pose, p, cache))
+
+        def sparse(pose: np.ndarray, **prior) -> BcpsPoints:
+            # A selection that only feeds a fit, which averages thousands of points: a
+            # third of the rays and one refinement level less (25 um steps) are enough.
+            if getattr(p, "refine_levels", 0) > 1:
+                cache["refine_levels"] = p.refine_levels - 1
             cache["stride"] = getattr(p, "refine_stride", 1)
-        sel = select(ctx, alignment.pose, p, cache)
-        cache.pop("refine_levels", None)
-        cache.pop("stride", None)
-        if p.refine_pose:
-            # A size error shifts every deviation the same way: it is not a misalignment.
-            # Fitting the points themselves would slide the reference until some faces are
-            # flush (BCPS points sit on edges, each close to two faces) and report the
-            # others twice too far. So the fit is on the points moved by the median
-            # deviation along the reference normals: a uniformly small part comes out
-            # centred and uniformly small. The robust scale starts wide (refine_start_mm):
-            # on a nearly symmetric part (a shaft with a flat) the few points that fix
-            # the rotation about its axis are off by tenths of a millimetre, beyond the
-            # final scale, until the fit has used them.
-            pose = alignment.pose
-            for _ in range(2):
-                offset = float(np.median(ref.signed_distance(sel.points, pose)))
-                target = sel.points - offset * ref.surface_normals(sel.points, pose)
-                refined = refine_on_points(
-                    target, ref.vertices, ref.faces, pose, robust_mm=p.refine_robust_mm, index=ref.distance,
-                    start_mm=p.refine_start_mm,
-                )
-                pose = refined.pose
-                if abs(offset) < 0.5 * p.refine_robust_mm:
-                    break
-            alignment = Alignment(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")
-            if getattr(p, "prior", "nominal") == "size":
-                prior = _size_prior(ctx, sel, alignment.pose, p)
-                if not prior.is_identity:
-                    # The first selection was made against the nominal reference, whose
-                    # deepest points over the faces that moved more bias the scale towards
-                    # 1 (hex nut at 0.98: 0.9833). One more sparse selection against the
-                    # fitted prior, and a re-fit, remove most of that bias.
-                    cache["refine_levels"] = max(p.refine_levels - 1, 0)
-                    cache["stride"] = p.refine_stride
-                    again = select(ctx, alignment.pose, p, cache, prior)
-                    cache.pop("refine_levels", None)
-                    cache.pop("stride", None)
-                    refit = _size_prior(ctx, again, alignment.pose, p)
-                    prior = refit if not refit.is_identity else prior
-                sel = select(ctx, alignment.pose, p, cache, prior)
-                sel = dataclasses.replace(sel, size=prior)
-            else:
-                sel = select(ctx, alignment.pose, p, cache)
+            try:
+                return select(ctx, pose, p, cache, **prior)
+            finally:
+                cache.pop("refine_levels", None)
+                cache.pop("stride", None)
+
+        sel = sparse(alignment.pose)
+        # A size error shifts every deviation the same way: it is not a misalignment.
+        # Fitting the points themselves would slide the reference until some faces are
+        # flush (BCPS points sit on edges, each close to two faces) and report the
+        # others twice too far. So the fit is on the points moved by the median
+        # deviation along the reference normals: a uniformly small part comes out
+        # centred and uniformly small. The robust scale starts wide (refine_start_mm):
+        # on a nearly symmetric part (a shaft with a flat) the few points that fix
+        # the rotation about its axis are off by tenths of a millimetre, beyond the
+        # final scale, until the fit has used them.
+        pose = alignment.pose
+        for _ in range(2):
+            offset = float(np.median(ref.signed_distance(sel.points, pose)))
+            target = sel.points - offset * ref.surface_normals(sel.points, pose)
+            refined = refine_on_points(
+                target, ref.vertices, ref.faces, pose, robust_mm=p.refine_robust_mm, index=ref.distance,
+                start_mm=p.refine_start_mm,
+            )
+            pose = refined.pose
+            if abs(offset) < 0.5 * p.refine_robust_mm:
+                break
+        alignment = Alignment(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")
+        if getattr(p, "prior", "nominal") != "size":
+            return ctx.evolve(bcps=select(ctx, alignment.pose, p, cache), alignment=alignment)
+        prior = _size_prior(ctx, sel, alignment.pose, p)
+        if not prior.is_identity:
+            # The first selection was made against the nominal reference, whose deepest
+            # points over the faces that moved more bias the scale towards 1 (hex nut at
+            # 0.98: 0.9833). One more sparse selection against the fitted prior, and a
+            # re-fit, remove most of that bias.
+            refit = _size_prior(ctx, sparse(alignment.pose, prior=prior), alignment.pose, p)
+            prior = refit if not refit.is_identity else prior
+        sel = dataclasses.replace(select(ctx, alignment.pose, p, cache, prior=prior), size=prior)
         return ctx.evolve(bcps=sel, alignment=alignment)
 
     return run

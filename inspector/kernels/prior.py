@@ -161,7 +161,7 @@ def fit_size_prior(
         x = np.linalg.solve(H, JW.T @ np.where(ok, r, 0.0))
         s += x[0]
         d += x[1:4]
-        if np.abs(x[0]) * 100.0 < 1e-6 and np.abs(x[1:]).max() < 1e-5 and cutoff <= robust_mm:
+        if abs(x[0]) < 1e-8 and np.abs(x[1:]).max() < 1e-5 and cutoff <= robust_mm:
             break
     q = c0 + (P - c0 - d) / s
     sd, c, gn, ok = _distance_and_gradient(index, q)
