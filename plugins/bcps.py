@@ -74,7 +74,8 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
     """Run the ``ray`` method on every camera for the reference placed at ``pose``.
 
     With a ``prior`` the candidates are ranked by their signed distance to the sized
-    reference; the deviations returned are against the nominal one at ``pose``.
+    reference; the deviations returned are against the nominal one placed on the part
+    (:meth:`SizePrior.rigid`).
     """
     sils = ctx.need("silhouettes", "bcps")
     ref = ctx.need("reference", "bcps")
@@ -84,6 +85,7 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
     prior = prior if prior is not None else SizePrior()
     sized = not prior.is_identity
     place = prior.placement(pose)  # = pose for the nominal reference
+    nominal = prior.rigid(pose)
     inv = np.linalg.inv(place)
 
     def sd_fn(X: np.ndarray) -> np.ndarray:
@@ -113,7 +115,7 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
             mesh=ref.distance if cache.get("stack") is not None else None, pose=place, sd_scale=prior.scale,
         )
         out["points"].append(pts[ok])
-        out["deviation"].append(ref.signed_distance(pts[ok], pose) if sized else dev[ok])
+        out["deviation"].append(ref.signed_distance(pts[ok], nominal) if sized else dev[ok])
         out["camera"].append(np.full(int(ok.sum()), i, np.int32))
         out["pixel"].append(sil.contour[sub][ok])
         out["segment"].append(seg[ok])
@@ -219,6 +221,8 @@ def _run(select):
             refit = _size_prior(ctx, sparse(alignment.pose, prior=prior), alignment.pose, p)
             prior = refit if not refit.is_identity else prior
         sel = dataclasses.replace(select(ctx, alignment.pose, p, cache, prior=prior), size=prior)
+        if not prior.is_identity:
+            alignment = dataclasses.replace(alignment, pose=prior.rigid(alignment.pose), method=f"{alignment.method}+size")
         return ctx.evolve(bcps=sel, alignment=alignment)
 
     return run

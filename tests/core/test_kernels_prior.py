@@ -31,21 +31,27 @@ def _samples(mesh: trimesh.Trimesh, n: int, seed: int) -> np.ndarray:
     return np.asarray(pts)
 
 
-def _sized(mesh: trimesh.Trimesh, centre: np.ndarray, scale: float, shift=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
+def _sized(mesh: trimesh.Trimesh, centre: np.ndarray, scale: float, shift=(0.0, 0.0, 0.0),
+           rotation=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
+    from scipy.spatial.transform import Rotation
+
     m = mesh.copy()
     m.apply_translation(-centre)
     m.apply_scale(scale)
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rotation).as_matrix()
+    m.apply_transform(T)
     m.apply_translation(centre + np.asarray(shift))
     return m
 
 
 def test_placement_gives_the_distance_to_the_sized_mesh(part):
     mesh, index, c0 = part
-    prior = SizePrior(scale=0.97, shift_mm=(0.2, -0.1, 0.05), centre=tuple(c0))
+    prior = SizePrior(scale=0.97, shift_mm=(0.2, -0.1, 0.05), rotation=(0.004, -0.01, 0.007), centre=tuple(c0))
     pose = np.eye(4)
     pose[:3, :3] = trimesh.transformations.rotation_matrix(0.7, [1, 2, 3])[:3, :3]
     pose[:3, 3] = [5.0, -3.0, 40.0]
-    truth = _sized(mesh, c0, 0.97, prior.shift_mm)
+    truth = _sized(mesh, c0, 0.97, prior.shift_mm, prior.rotation)
     truth.apply_transform(pose)
     want = MeshDistance(truth.vertices, truth.faces)
     rng = np.random.default_rng(0)
@@ -64,6 +70,21 @@ def test_a_scaled_part_is_recovered(part, scale):
     assert prior.scale == pytest.approx(scale, abs=2e-4)
     assert np.abs(prior.shift_mm).max() < 5e-3
     assert prior.inliers > 0.99
+
+
+def test_a_scaled_and_turned_part_is_recovered_with_its_pose_correction(part):
+    mesh, index, c0 = part
+    rot = np.radians([0.3, -0.5, 0.6])
+    P = _samples(_sized(mesh, c0, 0.98, (0.05, -0.03, 0.02), rot), 4000, 9)
+    prior = fit_size_prior(P, index, centre=c0, robust_mm=0.05)
+    assert prior.scale == pytest.approx(0.98, abs=2e-4)
+    np.testing.assert_allclose(prior.rotation, rot, atol=2e-4)
+    np.testing.assert_allclose(prior.shift_mm, (0.05, -0.03, 0.02), atol=5e-3)
+    # rigid(): the nominal reference placed on the part, centred on it.
+    want = _sized(mesh, c0, 1.0, (0.05, -0.03, 0.02), rot)
+    got = mesh.copy()
+    got.apply_transform(prior.rigid(np.eye(4)))
+    np.testing.assert_allclose(got.vertices, want.vertices, atol=5e-3)
 
 
 def test_local_defects_and_outliers_do_not_move_the_fit(part):
@@ -103,5 +124,5 @@ def test_too_few_or_unusable_points_give_the_identity(part):
 
 
 def test_to_json_is_plain():
-    j = SizePrior(0.98, (0.1, 0.0, 0.0), (0.0, 0.0, 0.0), 0.97).to_json()
-    assert j == {"scale": 0.98, "shift_mm": [0.1, 0.0, 0.0], "inliers": 0.97}
+    j = SizePrior(0.98, (0.1, 0.0, 0.0), (0.0, 0.0, np.radians(0.5)), (0.0, 0.0, 0.0), 0.97).to_json()
+    assert j == {"scale": 0.98, "shift_mm": [0.1, 0.0, 0.0], "rotation_deg": pytest.approx(0.5), "inliers": 0.97}
