@@ -74,10 +74,11 @@ class SizePrior:
         and ``pose`` (4, 4) places the reference in the world."""
         return np.asarray(pose, float) @ self._similarity(self.scale)
 
-    def rigid(self, pose: np.ndarray) -> np.ndarray:
-        """``pose`` corrected by the fit's rotation and shift, without its scale: the nominal
-        reference placed on the part (a scaled part comes out centred on it)."""
-        return np.asarray(pose, float) @ self._similarity(1.0)
+    def rigid(self, pose: np.ndarray | None = None) -> np.ndarray:
+        """``pose`` (default: the identity) corrected by the fit's rotation and shift, without
+        its scale: the nominal reference placed on the part (a scaled part comes out
+        centred on it)."""
+        return (np.eye(4) if pose is None else np.asarray(pose, float)) @ self._similarity(1.0)
 
     def to_json(self) -> dict[str, float]:
         return {"scale": float(self.scale), "shift_mm": [float(v) for v in self.shift_mm],
@@ -111,6 +112,41 @@ def _distance_and_gradient(index, q: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return sd, c, gn, ok
 
 
+def _gauss_newton(P: np.ndarray, index, c0: np.ndarray, start: tuple, robust_mm: float, start_mm: float,
+                  iterations: int) -> tuple[float, np.ndarray, np.ndarray] | None:
+    """IRLS of ``(scale, Q, d)`` from ``start`` on points ``P`` (N, 3); None if degenerate."""
+    s, Q, d = float(start[0]), np.array(start[1], float), np.array(start[2], float)
+    cutoff = float(start_mm)
+    for _ in range(int(iterations)):
+        q = c0 + ((P - c0 - d) @ Q) / s
+        sd, c, gn, ok = _distance_and_gradient(index, q)
+        if ok.sum() < 20:
+            return None
+        r = s * sd
+        spread = 4.685 * 1.4826 * float(np.median(np.abs(r[ok])))
+        cutoff = max(float(robust_mm), min(cutoff, max(spread, float(robust_mm))))
+        w = np.where(ok, _tukey(np.where(ok, r, 0.0), cutoff), 0.0)
+        if w.sum() <= 0:
+            return None
+        # In the prior's frame the surface point c moves by (c - c0) ds + w x (c - c0) + dd,
+        # so r changes by -(g . (c - c0)) ds - ((c - c0) x g) . w - g . dd to first order
+        # (g, c mapped by Q to the world side).
+        gw, cw = gn @ Q.T, (c - c0) @ Q.T
+        J = np.column_stack([np.einsum("ij,ij->i", gw, cw), s * np.cross(cw, gw), gw])
+        JW = J * w[:, None]
+        H = JW.T @ J
+        H += 1e-9 * np.trace(H) * np.eye(7)
+        x = np.linalg.solve(H, JW.T @ np.where(ok, r, 0.0))
+        s += x[0]
+        Q = _rotation(x[1:4]) @ Q
+        d += x[4:7]
+        if not np.isfinite(s) or s <= 0:
+            return None
+        if abs(x[0]) < 1e-8 and np.abs(x[1:4]).max() < 1e-7 and np.abs(x[4:]).max() < 1e-5 and cutoff <= robust_mm:
+            break
+    return s, Q, d
+
+
 def fit_size_prior(
     points_ref: np.ndarray,
     index,
@@ -122,6 +158,7 @@ def fit_size_prior(
     max_scale_change: float = 0.05,
     min_inliers: float = 0.5,
     min_significance: float = 4.0,
+    start: np.ndarray | None = None,
 ) -> SizePrior:
     """Fit the scale, rotation and shift of the reference to points on the part's surface.
 
@@ -150,6 +187,9 @@ def fit_size_prior(
         The fit counts only if the differential displacement the scale predicts across
         the part is at least this many times the points' median absolute deviation from
         the sized reference.
+    start : (4, 4) float, optional
+        Rigid transform of the reference frame to start from (e.g. an earlier fit's
+        :meth:`SizePrior.rigid` correction). Default: the identity.
 
     Returns
     -------
@@ -161,33 +201,13 @@ def fit_size_prior(
     c0 = np.asarray(centre, float).reshape(3)
     if len(P) < 20:
         return SizePrior(centre=tuple(c0))
-    s, Q, d = 1.0, np.eye(3), np.zeros(3)
-    cutoff = float(start_mm)
-    for _ in range(int(iterations)):
-        q = c0 + ((P - c0 - d) @ Q) / s
-        sd, c, gn, ok = _distance_and_gradient(index, q)
-        if ok.sum() < 20:
-            return SizePrior(centre=tuple(c0))
-        r = s * sd
-        spread = 4.685 * 1.4826 * float(np.median(np.abs(r[ok])))
-        cutoff = max(float(robust_mm), min(cutoff, max(spread, float(robust_mm))))
-        w = np.where(ok, _tukey(np.where(ok, r, 0.0), cutoff), 0.0)
-        if w.sum() <= 0:
-            return SizePrior(centre=tuple(c0))
-        # In the prior's frame the surface point c moves by (c - c0) ds + w x (c - c0) + dd,
-        # so r changes by -(g . (c - c0)) ds - ((c - c0) x g) . w - g . dd to first order
-        # (g, c mapped by Q to the world side).
-        gw, cw = gn @ Q.T, (c - c0) @ Q.T
-        J = np.column_stack([np.einsum("ij,ij->i", gw, cw), s * np.cross(cw, gw), gw])
-        JW = J * w[:, None]
-        H = JW.T @ J
-        H += 1e-9 * np.trace(H) * np.eye(7)
-        x = np.linalg.solve(H, JW.T @ np.where(ok, r, 0.0))
-        s += x[0]
-        Q = _rotation(x[1:4]) @ Q
-        d += x[4:7]
-        if abs(x[0]) < 1e-8 and np.abs(x[1:4]).max() < 1e-7 and np.abs(x[4:]).max() < 1e-5 and cutoff <= robust_mm:
-            break
+    # A start y -> R y + t is the model at scale 1 with Q = R, d = t - (I - R) c0.
+    T = np.eye(4) if start is None else np.asarray(start, float)
+    fit = (1.0, T[:3, :3], T[:3, 3] - (np.eye(3) - T[:3, :3]) @ c0)
+    fit = _gauss_newton(P, index, c0, fit, robust_mm, start_mm, iterations)
+    if fit is None:
+        return SizePrior(centre=tuple(c0))
+    s, Q, d = fit
     q = c0 + ((P - c0 - d) @ Q) / s
     sd, c, gn, ok = _distance_and_gradient(index, q)
     r = s * sd

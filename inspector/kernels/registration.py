@@ -456,6 +456,43 @@ def _robust_fit(
     return Wk[0], dist, cutoff
 
 
+def _axis_turns(ref: _Reference, angles_deg: tuple[float, ...]) -> np.ndarray:
+    """Internal-frame rotations (K, 4, 4) about the reference's axis of near-symmetry.
+
+    The identity first, then one turn per angle about the principal axis whose two
+    partners have nearly equal variance (ratio above ``_DEGENERATE``: a shaft, a nut),
+    through the surface's centroid; the identity alone for a reference with no such
+    single axis (a box, a cube, a sphere).
+    """
+    pts, _ = ref.sample(_REF_SAMPLES, np.random.default_rng(0))
+    E, lam = _principal_frame(pts)
+    close01, close12 = lam[1] >= _DEGENERATE * lam[0], lam[2] >= _DEGENERATE * lam[1]
+    if close01 == close12 or not angles_deg:
+        return np.eye(4)[None]
+    axis = E[:, 2] if close01 else E[:, 0]
+    centre = pts.mean(axis=0)
+    T = np.tile(np.eye(4), (1 + len(angles_deg), 1, 1))
+    T[1:, :3, :3] = _rodrigues(np.radians(np.asarray(angles_deg, float))[:, None] * axis[None])
+    T[1:, :3, 3] = centre - np.matmul(T[1:, :3, :3], centre)
+    return T
+
+
+def _best_start(ref: _Reference, points: np.ndarray, W: np.ndarray, *, floor_mm: float, start_mm: float,
+                iterations: int) -> np.ndarray:
+    """Fit all candidate transforms (K, 4, 4) together and return the one (4, 4) with the
+    lowest Tukey cost at ``floor_mm`` (every candidate judged on the same points)."""
+    cutoff = np.full(len(W), max(start_mm, floor_mm))
+    floor = np.full(len(W), floor_mm)
+    for _ in range(iterations):
+        step = _Step(ref, points, W, cutoff, floor, None)
+        W, cutoff = step.W, step.cutoff
+        if step.settled.all() and float(step.move.max()) < 1e-3 * floor_mm:
+            break
+    r = ref.distance(_transform(W, points))
+    u = np.minimum(r / floor_mm, 1.0)
+    return W[int(np.argmin(np.sum(1.0 - (1.0 - u * u) ** 3, axis=1)))]
+
+
 def _summary(dist: np.ndarray, inlier_mm: float) -> tuple[float, float]:
     inl = dist <= inlier_mm
     fitness = float(np.mean(inl)) if len(dist) else 0.0
@@ -680,6 +717,7 @@ def refine_on_points(
     iterations: int = 20,
     index: Any = None,
     start_mm: float | None = None,
+    axis_turns_deg: tuple[float, ...] = (),
 ) -> Alignment:
     """Robustly re-fit the reference pose on points that lie on its surface.
 
@@ -718,6 +756,12 @@ def refine_on_points(
         1 mm) lets the few points that pin a near-symmetry (the flat of a shaft, off by
         tenths of a millimetre while the rotation about the axis is wrong) act before
         the cutoff shrinks to ``robust_mm``.
+    axis_turns_deg : tuple of float
+        For a reference with an axis of near-symmetry (a shaft with a flat, a nut), also
+        start from ``pose`` turned about that axis by these angles, degrees, and keep the
+        start whose fit has the lowest robust cost: the features that fix the rotation
+        about such an axis are small, and a pose turned by ten degrees is a local minimum
+        that a single fit does not leave.
 
     Returns
     -------
@@ -741,9 +785,13 @@ def refine_on_points(
         raise ValueError(f"iterations must be a non-negative integer, got {iterations!r}")
 
     ref = _Reference(verts, faces, index)
+    W0 = ref.w_from_pose(P)
+    turns = _axis_turns(ref, tuple(axis_turns_deg))
+    if len(turns) > 1:
+        W0 = _best_start(ref, pts, turns @ W0, floor_mm=robust_mm, start_mm=min(start, 10.0 * robust_mm),
+                         iterations=int(iterations))
     W, dist, _ = _robust_fit(
-        ref, pts, ref.w_from_pose(P), floor_mm=robust_mm, start_mm=start, iterations=int(iterations),
-        tol=1e-6 * ref.diag,
+        ref, pts, W0, floor_mm=robust_mm, start_mm=start, iterations=int(iterations), tol=1e-6 * ref.diag,
     )
     fitness, rmse = _summary(dist, robust_mm)
     return Alignment(pose=ref.pose_from_w(W), fitness=fitness, rmse_mm=rmse, method="bcps-refine")

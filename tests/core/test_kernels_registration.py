@@ -389,3 +389,48 @@ def test_refine_wide_start_fixes_the_rotation_of_a_shaft_with_a_flat():
     assert wide.fitness == 1.0
     with pytest.raises(ValueError, match="start_mm"):
         refine_on_points(P, shaft.vertices, shaft.faces, T, start_mm=0.0)
+
+
+def _shaft_contour_points():
+    """The shaft of the test above and its contour-like points (side and flat edges)."""
+    cyl = trimesh.creation.cylinder(radius=10.0, height=30.0, sections=128)
+    cut = trimesh.creation.box((10.0, 30.0, 20.0))
+    cut.apply_translation((13.0, 0.0, 5.0))
+    shaft = trimesh.boolean.difference([cyl, cut], engine="manifold")
+    pts, fi = trimesh.sample.sample_surface(shaft, 40000, seed=5)
+    nrm = shaft.face_normals[fi]
+    on_flat = np.abs(nrm[:, 0] - 1.0) < 1e-6
+    edges = on_flat & (np.abs(np.abs(pts[:, 1]) - 6.0) < 0.4)
+    side = (np.abs(nrm[:, 2]) < 1e-6) & ~on_flat
+    return shaft, np.concatenate([pts[side][:8000], pts[edges]])
+
+
+def test_refine_axis_turns_get_a_shaft_out_of_a_ten_degree_minimum():
+    """Turned 11 degrees about its axis, the flat's edges are 2 mm off, beyond even a
+    1 mm start: one fit stays turned. Extra starts turned about the axis of near-symmetry
+    find the basin of the right pose."""
+    shaft, P = _shaft_contour_points()
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", 11.0, degrees=True).as_matrix()
+    one = refine_on_points(P, shaft.vertices, shaft.faces, T, robust_mm=0.1, start_mm=1.0)
+    turned = refine_on_points(P, shaft.vertices, shaft.faces, T, robust_mm=0.1, start_mm=1.0,
+                              axis_turns_deg=(-15.0, -7.5, 7.5, 15.0))
+    assert rotation_error_deg(one.pose, np.eye(4)) > 1.0
+    assert rotation_error_deg(turned.pose, np.eye(4)) < 0.05
+    assert turned.fitness == 1.0
+
+
+def test_axis_turns_only_for_a_reference_with_one_axis_of_near_symmetry():
+    from inspector.kernels.registration import _Reference, _axis_turns
+
+    shaft, _ = _shaft_contour_points()
+    box = trimesh.creation.box((26.0, 20.0, 14.0))
+    cube = trimesh.creation.box((30.0, 30.0, 30.0))
+    turns = _axis_turns(_Reference(np.asarray(shaft.vertices), np.asarray(shaft.faces)), (-10.0, 10.0))
+    assert turns.shape == (3, 4, 4)
+    np.testing.assert_allclose(turns[0], np.eye(4))
+    # about the shaft's axis (z): z is kept, the turn is 10 degrees
+    np.testing.assert_allclose(np.abs(turns[1, :3, 2]), [0, 0, 1], atol=0.02)
+    assert rotation_error_deg(turns[1], np.eye(4)) == pytest.approx(10.0, abs=1e-6)
+    for m in (box, cube):
+        assert len(_axis_turns(_Reference(np.asarray(m.vertices), np.asarray(m.faces)), (-10.0, 10.0))) == 1
