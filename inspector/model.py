@@ -222,6 +222,9 @@ class Silhouette:
         points on the image border.
     touches_border : bool
         The silhouette reaches the image border: outside the image is unknown, not empty.
+    edge_px : float
+        Uncertainty of the sub-pixel contour beyond image noise, px: 0 for anti-aliased
+        images, a few tenths for hard-edged ones (their pixel staircase, smoothed).
     """
 
     camera: str
@@ -229,6 +232,7 @@ class Silhouette:
     soft: np.ndarray
     contour: np.ndarray
     touches_border: bool = False
+    edge_px: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -32,7 +32,7 @@ class RayParams:
     refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001)
     refine_stride: int = param(3, "the selection that feeds the re-alignment uses every n-th contour point", min=1)
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
-    accept_px: float = param(0.2, "largest hull violation of a selected point, px (beyond: the ray has no point)", min=0.0, max=5.0)
+    accept_px: float = param(0.2, "largest hull violation of a selected point, px, plus the silhouettes' contour uncertainty (hard-edged images: 0.3 px; beyond: the ray has no point)", min=0.0, max=5.0)
     violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0)
     backend: Literal["numba", "numpy"] = param("numba", "hull kernel: compiled (numba) or the numpy reference")
     margin_mm: float = param(2.0, "margin added around the reconstruction's bounds for the rays, mm", min=0.0)
@@ -91,6 +91,10 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
     def sd_fn(X: np.ndarray) -> np.ndarray:
         return prior.scale * ref.distance(X @ inv[:3, :3].T + inv[:3, 3])
     recon = ctx.need("reconstruction", "bcps")
+    # Hard-edged silhouettes are less exact than the hull tolerance assumes: a ray's true
+    # point can lie a few tenths of a pixel outside them (shaft, binary images: 10 points
+    # 1-1.8 px off in bulges at 0.2 px, a false reject).
+    accept = p.accept_px + max(s.edge_px for s in sils)
     out = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
     ranges = cache.setdefault("ranges", {})
     stride = cache.get("stride", 1)
@@ -110,7 +114,8 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
         sub = slice(None, None, stride)
         pts, dev, seg, ok = bk.select_on_rays(
             origin, dirs[sub], views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm,
-            refine_levels=cache.get("refine_levels", p.refine_levels), tolerance_px=p.tolerance_px, accept_px=p.accept_px,
+            refine_levels=cache.get("refine_levels", p.refine_levels), tolerance_px=p.tolerance_px,
+            accept_px=accept,
             violation_weight=p.violation_weight, t_range=(r0[sub], r1[sub]),
             mesh=ref.distance if cache.get("stack") is not None else None, pose=place, sd_scale=prior.scale,
         )

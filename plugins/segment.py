@@ -55,6 +55,11 @@ def _denoise(grey: np.ndarray, p: SegmentParams) -> np.ndarray:
 #: Smoothing of hard-edged images, px (binary cube: mean error 0.25 px unsmoothed, 0.13 px at 1.0, 0.12 at 1.5 with more outliers).
 AUTO_SMOOTH_PX = 1.0
 
+#: Contour uncertainty of a smoothed (hard-edged) image, px: what is left of the pixel
+#: staircase after smoothing (binary images: contour errors up to about half a pixel,
+#: against a few hundredths for anti-aliased ones). BCPS widens its hull acceptance by it.
+SMOOTHED_EDGE_PX = 0.3
+
 #: Crop around the kept components for the contour work, px: the contour lies within 1 px
 #: of them; subpixel_contour works on their box + 3 px, refine_contour_area reads up to
 #: half_window + 1 = 3 px beyond the contour. The points are then the whole image's.
@@ -89,6 +94,8 @@ def _coverage_u8(grey: np.ndarray, polarity: str, p: SegmentParams, camera: str)
         1 where the coverage is >= 0.5.
     raw : callable
         ``raw(y0, y1, x0, x1)`` -> the unclipped coverage of that box, float32.
+    sigma : float
+        Smoothing applied to the coverage, px (0: the image's own anti-aliasing).
     """
     import cv2
 
@@ -105,9 +112,9 @@ def _coverage_u8(grey: np.ndarray, polarity: str, p: SegmentParams, camera: str)
         partial = int(counts[(raw_t > 0.2) & (raw_t < 0.8)].sum())
         sigma = AUTO_SMOOTH_PX if _hard_edged(above, partial) else 0.0
     if sigma > 0:
-        return _smoothed(cv2.LUT(grey, raw_t), sigma)
+        return (*_smoothed(cv2.LUT(grey, raw_t), sigma), sigma)
     soft = cv2.LUT(grey, np.clip(raw_t, 0.0, 1.0))
-    return soft, above, lambda y0, y1, x0, x1: cv2.LUT(grey[y0:y1, x0:x1], raw_t)
+    return soft, above, lambda y0, y1, x0, x1: cv2.LUT(grey[y0:y1, x0:x1], raw_t), 0.0
 
 
 def _coverage_float(image, background, polarity: str, p: SegmentParams, camera: str):
@@ -125,9 +132,9 @@ def _coverage_float(image, background, polarity: str, p: SegmentParams, camera: 
         partial = int(np.count_nonzero((raw > 0.2) & (raw < 0.8)))
         sigma = AUTO_SMOOTH_PX if _hard_edged(raw >= 0.5, partial) else 0.0
     if sigma > 0:
-        return _smoothed(raw, sigma)
+        return (*_smoothed(raw, sigma), sigma)
     soft = np.clip(raw, 0.0, 1.0)
-    return soft, (soft >= 0.5).view(np.uint8), lambda y0, y1, x0, x1: raw[y0:y1, x0:x1]
+    return soft, (soft >= 0.5).view(np.uint8), lambda y0, y1, x0, x1: raw[y0:y1, x0:x1], 0.0
 
 
 def _smoothed(raw: np.ndarray, sigma: float):
@@ -154,9 +161,9 @@ def segment_image(
     """
     grey8 = sk.grey_u8(image) if background is None else None
     if grey8 is not None:
-        soft, above, raw_in = _coverage_u8(grey8, polarity, p, camera)
+        soft, above, raw_in, sigma = _coverage_u8(grey8, polarity, p, camera)
     else:
-        soft, above, raw_in = _coverage_float(image, background, polarity, p, camera)
+        soft, above, raw_in, sigma = _coverage_float(image, background, polarity, p, camera)
     comps = sk.kept_components(above, p.min_area_px)
     if comps.box is None:
         raise StageError(f"camera {camera}: empty silhouette (no object region of {p.min_area_px} px or more)")
@@ -176,7 +183,8 @@ def segment_image(
         h, w = mask.shape
         keep = (contour[:, 0] >= 1) & (contour[:, 0] <= w - 2) & (contour[:, 1] >= 1) & (contour[:, 1] <= h - 2)
         contour = contour[keep]
-    return Silhouette(camera=camera, mask=mask, soft=soft, contour=contour, touches_border=border)
+    return Silhouette(camera=camera, mask=mask, soft=soft, contour=contour, touches_border=border,
+                      edge_px=SMOOTHED_EDGE_PX if sigma > 0 else 0.0)
 
 
 def run_segment(ctx: InspectionContext, p: SegmentParams) -> InspectionContext:

@@ -52,6 +52,15 @@ def test_segment_bright_object_and_background(small):
         assert (a.mask != b.mask).mean() < 1e-3
 
 
+def test_segment_reports_the_contour_uncertainty_of_hard_edged_images(small):
+    from inspector_plugins.segment import SMOOTHED_EDGE_PX
+
+    assert all(s.edge_px == 0.0 for s in _segment(small).silhouettes)  # anti-aliased
+    hard = {name: np.where(img < 128, 30, 220).astype(np.uint8) for name, img in small.images.items()}
+    sils = _segment(Capture(small.name, small.rig, hard)).silhouettes
+    assert all(s.edge_px == SMOOTHED_EDGE_PX for s in sils)
+
+
 def test_segment_empty_silhouette_names_the_camera(small):
     imgs = dict(small.images)
     imgs["cam03"] = np.full_like(imgs["cam03"], 200)
