@@ -511,7 +511,7 @@ def _rotation_hypotheses(xs: np.ndarray, xt: np.ndarray) -> np.ndarray:
     of the cube group that only exchange axes of similar variance (ratio above
     ``_SIMILAR``; the 4 sign flips always). Where variances are nearly equal
     (ratio above ``_DEGENERATE``) the axes are ill-defined, so the candidates are
-    also turned by intermediate angles: about the distinct axis in 22.5 degree
+    also turned by intermediate angles: about the distinct axis in 7.5 degree
     steps when two variances are close, about each axis by 45 degrees when all
     three are. The identity comes first.
     """
@@ -534,7 +534,9 @@ def _rotation_hypotheses(xs: np.ndarray, xt: np.ndarray) -> np.ndarray:
         offsets += [_rodrigues(np.eye(3)[a] * (np.pi / 4)) for a in range(3)]
     elif len(degenerate) == 1:
         axis = 3 - sum(degenerate[0])
-        offsets += [_rodrigues(np.eye(3)[axis] * (k * np.pi / 8)) for k in (1, 2, 3)]
+        # 7.5 degree steps: from 22.5, the hull fit could stay 11 degrees off about a
+        # shaft's axis (1.7 mm at its flat), too far for the BCPS re-fit.
+        offsets += [_rodrigues(np.eye(3)[axis] * (k * np.pi / 24)) for k in range(1, 12)]
     rots = [np.eye(3)] + [Et @ G @ O @ Es.T for O in offsets for G in allowed]
     return np.array(rots)
 
