@@ -68,7 +68,8 @@ def test_run_tiny(tmp_path, capsys):
                          "--carve-runs", "1", "--open3d-voxel", "2.0", "--json", str(out)))
     assert rc in (0, 1)  # targets are for the full capture, not this one
     doc = json.loads(out.read_text())
-    assert set(doc) >= {"config", "machine", "cycles", "carving", "targets", "verdicts"}
+    assert set(doc) >= {"config", "machine", "compile", "cycles", "carving", "targets", "verdicts"}
+    assert doc["compile"]["exit"] in (0, 1) and doc["compile"]["seconds"] > 0
     assert doc["verdicts"] and all(v in ("pass", "fail") for v in doc["verdicts"])
     cyc = doc["cycles"]
     assert len(cyc["runs"]) == 1 and cyc["warmup_s"] > 0
@@ -89,6 +90,14 @@ def test_run_tiny(tmp_path, capsys):
     assert rc == (0 if all(t["met"] for t in doc["targets"].values()) else 1)
     text = capsys.readouterr().out
     assert "targets:" in text and "carve ratio" in text and ("NOT MET" in text or "MET" in text)
+
+
+def test_kernels_are_compiled_by_a_real_inspection_in_a_child(small_capture, tmp_path):
+    r = bench.compile_kernels(str(RECIPES / "default.toml"), "builtin:cube30", small_capture, tmp_path / "out")
+    assert r["exit"] in (0, 1)  # pass or out of tolerance: the whole pipeline ran
+    assert (tmp_path / "out" / small_capture.name / "result.json").is_file()
+    bad = bench.compile_kernels(str(RECIPES / "default.toml"), "builtin:cube30", tmp_path / "missing", tmp_path / "o2")
+    assert bad["exit"] not in (0, 1)
 
 
 def test_open3d_grid_too_large_is_refused(default_recipe, small_capture):
