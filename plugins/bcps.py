@@ -209,9 +209,9 @@ def _run(select):
         # the rotation about its axis are off by tenths of a millimetre, beyond the
         # final scale, until the fit has used them.
         # The first fit also starts from the pose turned about the reference's axis of
-        # near-symmetry, if it has one: the global alignment tries turns 22.5 degrees apart
-        # on the bulgy hull and can end about ten degrees off (shaft with a flat: 1.2 mm
-        # at the flat, a false reject), a local minimum a single fit does not leave.
+        # near-symmetry, if it has one: the global alignment's fit on the bulgy hull can
+        # end about ten degrees off about it (shaft with a flat: 1.2 mm at the flat, a
+        # false reject), a local minimum a single fit does not leave.
         pose = alignment.pose
         for i in range(2):
             offset = float(np.median(ref.signed_distance(sel.points, pose)))
