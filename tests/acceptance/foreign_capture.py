@@ -458,8 +458,9 @@ def make_capture(
     Returns
     -------
     dict
-        ``capture`` (folder), ``reference`` (STL), ``true_mesh`` (PLY), ``truth`` (JSON), ``name``
-        and ``render_s`` (seconds spent rendering).
+        ``capture`` (folder), ``reference`` (STL), ``true_mesh`` (PLY), ``truth`` (JSON), ``name``,
+        ``render_s`` (seconds spent rendering) and ``defect_visible`` (whether the defect
+        changes any camera's silhouette by more than 1 px^2).
     """
     if condition not in CONDITIONS:
         raise ValueError(f"unknown condition {condition!r} (known: {', '.join(CONDITIONS)})")
@@ -477,9 +478,15 @@ def make_capture(
     world.apply_transform(pose)
     cams = fibonacci_rig(seed=rig_seed)
 
+    posed_nominal = nominal.copy()
+    posed_nominal.apply_transform(pose)
     t0 = time.perf_counter()
+    change = []
     for cam in cams:
         sil = silhouette(world, cam)
+        # How much of the defect any silhouette shows at all (px^2): a dent that no camera
+        # sees on its contour is invisible to every silhouette method.
+        change.append(0.0 if defect == "none" else float(sil.symmetric_difference(silhouette(posed_nominal, cam)).area))
         cov = coverage(sil, cam.width, cam.height)
         # Exactness guard: the pixel areas add up to the silhouette's area inside the image.
         inside = shapely.clip_by_rect(sil, -0.5, -0.5, cam.width - 0.5, cam.height - 0.5).area
@@ -501,11 +508,12 @@ def make_capture(
     truth = {
         "part": part, "condition": condition, "defect": defect_info, "seed": seed, "polarity": polarity,
         "pose": pose.tolist(), "footprint_mm": footprint_mm(cams, pose[:3, 3]),
+        "silhouette_change_px2": change,
         "rig": {"cameras": len(cams), "radius_mm": 400.0, "focal_px": 4000.0, "size_px": [1024, 1024], "seed": rig_seed},
     }
     (tdir / "truth.json").write_text(json.dumps(truth, indent=1))
     return {"name": name, "capture": cap, "reference": tdir / "reference.stl", "true_mesh": tdir / "true_world.npz",
-            "truth": tdir / "truth.json", "render_s": render_s}
+            "truth": tdir / "truth.json", "render_s": render_s, "defect_visible": sum(change) > 1.0}
 
 
 # --------------------------------------------------------------------------- self-check

@@ -258,11 +258,12 @@ def test_bcps_surface_method_runs_and_is_signed_argmin(small):
     assert np.all(np.bincount(b.camera, minlength=len(small.rig)) > 0)
 
 
-def _eval_ctx(dev, points):
+def _eval_ctx(dev, points, cameras=None):
     from inspector.model import Rig
 
     n = len(dev)
-    bc = BcpsPoints(points, np.asarray(dev, float), np.zeros(n, int), np.zeros((n, 2)), np.ones(n), "ray")
+    cameras = np.arange(n) % 4 if cameras is None else np.asarray(cameras)  # neighbours from different cameras
+    bc = BcpsPoints(points, np.asarray(dev, float), cameras, np.zeros((n, 2)), np.ones(n), "ray")
     cube = Reference.load("builtin:cube30")
     tol = Tolerance(Band(-0.1, 0.1), (Region("top", (-20, -20, 10), (20, 20, 20), Band(-0.5, 0.5)),))
     return InspectionContext(
@@ -294,3 +295,16 @@ def test_evaluate_clusters_regions_and_verdict():
     assert out.stats["regions"]["top"]["n_points"] == 200
     ok = evaluate(_eval_ctx(np.where(np.abs(dev) > 0.2, 0.0, dev), pts), EvaluateParams()).evaluation
     assert ok.verdict == "pass" and ok.defects == ()
+
+
+def test_evaluate_a_defect_seen_by_one_camera_only_does_not_reject():
+    """Image noise moves one camera's contour: its points alone are not a defect."""
+    from inspector_plugins.evaluate import EvaluateParams, evaluate
+
+    pts = np.array([[5.0 + 0.1 * i, 5.0, -15.0] for i in range(6)])
+    dev = np.full(6, -0.4)
+    one = evaluate(_eval_ctx(dev, pts, cameras=np.full(6, 3)), EvaluateParams()).evaluation
+    assert one.verdict == "pass" and one.stats["isolated_out_of_tolerance"] == 6
+    two = evaluate(_eval_ctx(dev, pts, cameras=[3, 3, 3, 3, 3, 7]), EvaluateParams()).evaluation
+    assert two.verdict == "fail" and two.defects[0].n_points == 6
+    assert evaluate(_eval_ctx(dev, pts, cameras=np.full(6, 3)), EvaluateParams(min_cameras=1)).evaluation.verdict == "fail"
