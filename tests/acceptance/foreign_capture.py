@@ -59,7 +59,7 @@ __all__ = [
 #: Imaging conditions of the acceptance requirement.
 CONDITIONS = ("grey", "binary", "strong")
 #: Defects applied to the true part (the reference stays nominal).
-DEFECTS = ("none", "scale", "bump_removed")
+DEFECTS = ("none", "scale", "bump_removed", "scale_up", "bump_added")
 #: Grey levels (background, object) for a dark object on a bright (backlit) background.
 LEVELS_DARK = (200.0, 40.0)
 
@@ -214,10 +214,12 @@ def apply_defect(
 
     Parameters
     ----------
-    defect : {"none", "scale", "bump_removed"}
+    defect : {"none", "scale", "bump_removed", "scale_up", "bump_added"}
         ``scale``: uniform scale by ``scale`` about the part centre (the origin);
         ``bump_removed``: a sphere of ``bump_radius_mm`` centred on a random point of the
-        part's convex-hull surface is subtracted (manifold boolean).
+        part's convex-hull surface is subtracted (manifold boolean). The excess-material
+        variants: ``scale_up`` scales by ``2 - scale`` (1.02), ``bump_added`` adds the
+        sphere instead (a bump ``bump_radius_mm`` high).
 
     Returns
     -------
@@ -229,16 +231,17 @@ def apply_defect(
     mesh = nominal.copy()
     if defect == "none":
         return mesh, {"kind": "none"}
-    if defect == "scale":
-        mesh.apply_scale(scale)
-        return mesh, {"kind": "scale", "scale": scale}
-    if defect == "bump_removed":
+    if defect in ("scale", "scale_up"):
+        k = scale if defect == "scale" else 2.0 - scale
+        mesh.apply_scale(k)
+        return mesh, {"kind": defect, "scale": k}
+    if defect in ("bump_removed", "bump_added"):
         at = _hull_surface_point(nominal, rng)
         ball = trimesh.creation.icosphere(subdivisions=4, radius=bump_radius_mm)
         ball.apply_translation(at)
-        mesh = _difference([mesh, ball])
-        _check_solid(mesh, "bump_removed")
-        return mesh, {"kind": "bump_removed", "at_mm": at.tolist(), "radius_mm": bump_radius_mm}
+        mesh = _difference([mesh, ball]) if defect == "bump_removed" else _union([mesh, ball])
+        _check_solid(mesh, defect)
+        return mesh, {"kind": defect, "at_mm": at.tolist(), "radius_mm": bump_radius_mm}
     raise ValueError(f"unknown defect {defect!r} (known: {', '.join(DEFECTS)})")
 
 
