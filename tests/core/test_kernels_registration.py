@@ -365,11 +365,9 @@ def test_refine_rejects_bad_inputs(small_case):
         refine_on_points(pts, v, f, pose, iterations=-1)
 
 
-def test_refine_wide_start_fixes_the_rotation_of_a_shaft_with_a_flat():
-    """Contour-like points (the cylinder's side and the flat's two long edges) of a
-    shaft turned 3 degrees about its axis: only the edge points, about 0.3 mm off,
-    pin the rotation. With the cutoff at ``robust_mm`` from the start they are ignored
-    and the fit stays turned; a 1 mm start lets them act first."""
+def _shaft_contour_points():
+    """A shaft with a flat and its contour-like points (the cylinder's side and the flat's
+    two long edges)."""
     cyl = trimesh.creation.cylinder(radius=10.0, height=30.0, sections=128)
     cut = trimesh.creation.box((10.0, 30.0, 20.0))
     cut.apply_translation((13.0, 0.0, 5.0))  # a flat 2 mm deep over the upper 15 mm
@@ -379,7 +377,15 @@ def test_refine_wide_start_fixes_the_rotation_of_a_shaft_with_a_flat():
     on_flat = np.abs(nrm[:, 0] - 1.0) < 1e-6
     edges = on_flat & (np.abs(np.abs(pts[:, 1]) - 6.0) < 0.4)
     side = (np.abs(nrm[:, 2]) < 1e-6) & ~on_flat
-    P = np.concatenate([pts[side][:8000], pts[edges]])
+    return shaft, np.concatenate([pts[side][:8000], pts[edges]])
+
+
+def test_refine_wide_start_fixes_the_rotation_of_a_shaft_with_a_flat():
+    """Contour-like points (the cylinder's side and the flat's two long edges) of a
+    shaft turned 3 degrees about its axis: only the edge points, about 0.3 mm off,
+    pin the rotation. With the cutoff at ``robust_mm`` from the start they are ignored
+    and the fit stays turned; a 1 mm start lets them act first."""
+    shaft, P = _shaft_contour_points()
     T = np.eye(4)
     T[:3, :3] = Rotation.from_euler("z", 3.0, degrees=True).as_matrix()
     narrow = refine_on_points(P, shaft.vertices, shaft.faces, T, robust_mm=0.1)
@@ -389,20 +395,6 @@ def test_refine_wide_start_fixes_the_rotation_of_a_shaft_with_a_flat():
     assert wide.fitness == 1.0
     with pytest.raises(ValueError, match="start_mm"):
         refine_on_points(P, shaft.vertices, shaft.faces, T, start_mm=0.0)
-
-
-def _shaft_contour_points():
-    """The shaft of the test above and its contour-like points (side and flat edges)."""
-    cyl = trimesh.creation.cylinder(radius=10.0, height=30.0, sections=128)
-    cut = trimesh.creation.box((10.0, 30.0, 20.0))
-    cut.apply_translation((13.0, 0.0, 5.0))
-    shaft = trimesh.boolean.difference([cyl, cut], engine="manifold")
-    pts, fi = trimesh.sample.sample_surface(shaft, 40000, seed=5)
-    nrm = shaft.face_normals[fi]
-    on_flat = np.abs(nrm[:, 0] - 1.0) < 1e-6
-    edges = on_flat & (np.abs(np.abs(pts[:, 1]) - 6.0) < 0.4)
-    side = (np.abs(nrm[:, 2]) < 1e-6) & ~on_flat
-    return shaft, np.concatenate([pts[side][:8000], pts[edges]])
 
 
 def test_refine_axis_turns_get_a_shaft_out_of_a_ten_degree_minimum():
