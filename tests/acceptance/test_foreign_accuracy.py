@@ -138,7 +138,9 @@ def test_capture_folder_follows_the_contract(tmp_path):
     ("housing", 2, 13),  # grey, bump removed
     ("shaft", 4, 14),    # strong noise + impulses (bright object)
     ("shaft", 0, 1200),  # grey, nominal: was turned 3 degrees about its axis (false reject)
-], ids=["hexnut-grey-scale098", "hexnut-grey-scale098-seed11", "torus-binary", "housing-grey-bump", "shaft-strong", "shaft-grey-nominal"])
+    ("shaft", 3, 2203),  # binary: rejected while the hard-edged contour uncertainty was 0.3 px
+], ids=["hexnut-grey-scale098", "hexnut-grey-scale098-seed11", "torus-binary", "housing-grey-bump", "shaft-strong",
+        "shaft-grey-nominal", "shaft-binary"])
 def test_bcps_accuracy_on_a_foreign_capture(tmp_path, part, case_index, seed):
     case = rm.CASES[case_index]
     row = rm.run_case(tmp_path, part, case, seed)
