@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from inspector.kernels.robust import tukey
+
 __all__ = ["SizePrior", "fit_size_prior"]
 
 
@@ -92,11 +94,6 @@ def _rotation(w: np.ndarray) -> np.ndarray:
     return Rotation.from_rotvec(w).as_matrix()
 
 
-def _tukey(r: np.ndarray, c: float) -> np.ndarray:
-    u = r / c
-    return np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
-
-
 def _distance_and_gradient(index, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Signed distance (N,), closest points (N, 3), unit outward gradient (N, 3) and a
     validity mask (N,) of reference-frame points ``q`` (N, 3)."""
@@ -125,7 +122,7 @@ def _gauss_newton(P: np.ndarray, index, c0: np.ndarray, start: tuple, robust_mm:
         r = s * sd
         spread = 4.685 * 1.4826 * float(np.median(np.abs(r[ok])))
         cutoff = max(float(robust_mm), min(cutoff, max(spread, float(robust_mm))))
-        w = np.where(ok, _tukey(np.where(ok, r, 0.0), cutoff), 0.0)
+        w = np.where(ok, tukey(np.where(ok, r, 0.0), cutoff), 0.0)
         if w.sum() <= 0:
             return None
         # In the prior's frame the surface point c moves by (c - c0) ds + w x (c - c0) + dd,

@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
+from inspector.kernels.robust import tukey
 from inspector.model import Alignment
 
 __all__ = ["align_reference", "refine_on_points"]
@@ -293,11 +294,6 @@ class _Reference:
 # --------------------------------------------------------------------------- robust Gauss-Newton
 
 
-def _tukey(r: np.ndarray, c: np.ndarray | float) -> np.ndarray:
-    u = r / c
-    return np.where(u < 1.0, (1.0 - u * u) ** 2, 0.0)
-
-
 def _transform(W: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Apply K transforms (K, 4, 4) to points (N, 3) -> (K, N, 3)."""
     return np.matmul(x[None], W[:, :3, :3].transpose(0, 2, 1)) + W[:, None, :3, 3]
@@ -364,7 +360,7 @@ class _Step:
         # triangle normal for points (numerically) on the surface.
         on_surface = r <= 1e-6
         g = np.where(on_surface[..., None], n, d / np.where(on_surface, 1.0, r)[..., None])
-        w = _tukey(r, cutoff[:, None])
+        w = tukey(r, cutoff[:, None])
         if normals is not None:
             nq = np.matmul(normals[None], W[:, :3, :3].transpose(0, 2, 1))
             w = w * (np.sum(nq * n, axis=2) > _NORMAL_COS)
