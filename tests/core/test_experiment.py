@@ -88,6 +88,18 @@ def test_cli_options_and_specs():
     assert full[0]["sim"]["width"] == 1024 and full[0]["sim"]["mm_per_px"] == 0.1
 
 
+def test_the_built_in_pipeline_carves_at_one_pixel_footprint_and_a_recipe_keeps_its_own(tmp_path):
+    def voxel(stages):
+        return next(s["params"]["voxel_mm"] for s in stages if s["use"] == "carve.hull")
+
+    assert voxel(ex._pipeline(None, "full")[0]) == ex.PRESETS["full"]["rig"]["mm_per_px"] == 0.1
+    assert voxel(ex._pipeline(None, "quick")[0]) == ex.PRESETS["quick"]["rig"]["mm_per_px"] == 0.2
+    recipe = tmp_path / "r.toml"
+    recipe.write_text('[recipe]\nname = "r"\n[[stages]]\nuse = "carve.hull"\nparams = { voxel_mm = 0.5 }\n'
+                      '[[stages]]\nuse = "bcps.ray"\n', encoding="utf-8")
+    assert voxel(ex._pipeline(str(recipe), "full")[0]) == 0.5
+
+
 def test_bad_options_are_refused():
     from inspector.errors import RecipeError
 
