@@ -32,7 +32,7 @@ class RayParams:
     refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001)
     refine_stride: int = param(3, "the selection that feeds the re-alignment uses every n-th contour point", min=1)
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
-    accept_px: float = param(0.2, "largest hull violation of a selected point, px, plus the silhouettes' contour uncertainty (hard-edged images: 0.5 px; beyond: the ray has no point)", min=0.0, max=5.0)
+    accept_px: float = param(0.2, "largest hull violation of a selected point, px, plus the silhouettes' contour uncertainty (hard-edged images: 0.3 px; beyond: the ray has no point)", min=0.0, max=5.0)
     violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0)
     backend: Literal["numba", "numpy"] = param("numba", "hull kernel: compiled (numba) or the numpy reference")
     margin_mm: float = param(2.0, "margin added around the reconstruction's bounds for the rays, mm", min=0.0)

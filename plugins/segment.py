@@ -58,9 +58,7 @@ AUTO_SMOOTH_PX = 1.0
 #: Contour uncertainty of a smoothed (hard-edged) image, px: what is left of the pixel
 #: staircase after smoothing (binary images: contour errors up to about half a pixel,
 #: against a few hundredths for anti-aliased ones). BCPS widens its hull acceptance by it.
-#: At 0.3 a binary shaft was rejected: near its shoulders other cameras' contours, 0.5-0.75 px
-#: inside the truth, cut rays off their true points (3 points 0.15-0.18 mm out).
-SMOOTHED_EDGE_PX = 0.5
+SMOOTHED_EDGE_PX = 0.3
 
 #: Crop around the kept components for the contour work, px: the contour lies within 1 px
 #: of them; subpixel_contour works on their box + 3 px, refine_contour_area reads up to

@@ -219,6 +219,30 @@ def ray_ranges(
     return t0 - radius_mm, t1 + radius_mm
 
 
+def _refine(origin, d, tbest, vbest, sbest, hull, sd_fn, step_mm, levels, offsets, half, lip, accept_px, tol, weight):
+    """Refine each ray's seed ``(t, violation, sd)`` ``levels`` times on a grid of
+    ``offsets`` (each level ``half`` times finer); returns the refined ``(t, v, sd)``."""
+    n = len(tbest)
+    ar = np.arange(n)
+    every = np.ones((n, len(offsets)), bool)
+    h = step_mm
+    for _ in range(levels):
+        tt = tbest[:, None] + h * offsets[None, :]
+        eps = max(0.5 * lip * h / half, accept_px)
+        cbest = sbest + weight * np.maximum(vbest - tol, 0.0)
+        v2, s2, c2 = _evaluate(origin, d, tt, every, hull, sd_fn, eps, tol, weight, centre=(tbest, sbest, cbest))
+        has = np.isfinite(c2).any(axis=1)
+        k2 = np.where(has, np.argmin(c2, axis=1), np.argmin(v2, axis=1))
+        # Keep the previous best where nothing queried beats it (pruned samples cannot).
+        stay = np.isfinite(cbest) & ~(c2[ar, k2] < cbest)
+        move = ~stay
+        tbest = np.where(move, tt[ar, k2], tbest)
+        vbest = np.where(move, v2[ar, k2], vbest)
+        sbest = np.where(move, s2[ar, k2], sbest)
+        h = h / half
+    return tbest, vbest, sbest
+
+
 def select_on_rays(
     origin: np.ndarray,
     dirs: np.ndarray,
@@ -375,24 +399,20 @@ def select_on_rays(
         tbest = t[ar, k]
         vbest = viol[ar, k]
         sbest = sd[ar, k]
-        every = np.ones((n, refine_samples), bool)
-        h = step_mm
-        for _ in range(refine_levels):
-            tt = tbest[:, None] + h * offsets[None, :]
-            eps = max(0.5 * lip * h / half, accept_px)
-            cbest = sbest + weight * np.maximum(vbest - tolerance_px, 0.0)
-            v2, s2, c2 = _evaluate(
-                origin, d, tt, every, hull, sd_fn, eps, tolerance_px, weight, centre=(tbest, sbest, cbest)
-            )
-            has = np.isfinite(c2).any(axis=1)
-            k2 = np.where(has, np.argmin(c2, axis=1), np.argmin(v2, axis=1))
-            # Keep the previous best where nothing queried beats it (pruned samples cannot).
-            stay = np.isfinite(cbest) & ~(c2[ar, k2] < cbest)
-            move = ~stay
-            tbest = np.where(move, tt[ar, k2], tbest)
-            vbest = np.where(move, v2[ar, k2], vbest)
-            sbest = np.where(move, s2[ar, k2], sbest)
-            h = h / half
+        # Second seed: the deepest accepted sample (see bcps_jit._select_kernel).
+        kq = np.argmin(sd, axis=1)
+        qt, qv, qs = t[ar, kq], viol[ar, kq], sd[ar, kq]
+        two = has & (qs < sbest) & (np.abs(qt - tbest) > step_mm)
+        tbest, vbest, sbest = _refine(origin, d, tbest, vbest, sbest, hull, sd_fn, step_mm, refine_levels, offsets,
+                                      half, lip, accept_px, tolerance_px, weight)
+        if two.any():
+            t2, v2, s2 = _refine(origin, d[two], qt[two], qv[two], qs[two], hull, sd_fn, step_mm, refine_levels,
+                                 offsets, half, lip, accept_px, tolerance_px, weight)
+            c1 = sbest[two] + weight * np.maximum(vbest[two] - tolerance_px, 0.0)
+            c2 = s2 + weight * np.maximum(v2 - tolerance_px, 0.0)
+            win = c2 < c1
+            better = np.flatnonzero(two)[win]
+            tbest[better], vbest[better], sbest[better] = t2[win], v2[win], s2[win]
         ok = (vbest <= accept_px) & np.isfinite(sbest)
         sel = rows[ok]
         points[sel] = origin + tbest[ok, None] * d[ok]
