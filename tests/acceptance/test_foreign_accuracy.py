@@ -138,7 +138,7 @@ def test_capture_folder_follows_the_contract(tmp_path):
     ("housing", 2, 13),  # grey, bump removed
     ("shaft", 4, 14),    # strong noise + impulses (bright object)
     ("shaft", 0, 1200),  # grey, nominal: was turned 3 degrees about its axis (false reject)
-    ("shaft", 3, 2203),  # binary: rejected while the hard-edged contour uncertainty was 0.3 px
+    ("shaft", 3, 2203),  # binary: falsely rejected before rays were also refined from their deepest sample
 ], ids=["hexnut-grey-scale098", "hexnut-grey-scale098-seed11", "torus-binary", "housing-grey-bump", "shaft-strong",
         "shaft-grey-nominal", "shaft-binary"])
 def test_bcps_accuracy_on_a_foreign_capture(tmp_path, part, case_index, seed):

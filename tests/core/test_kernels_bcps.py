@@ -200,3 +200,31 @@ def test_compiled_ray_ranges_equal_numpy(views):
     assert np.isfinite(a[0]).mean() > 0.3 and (~np.isfinite(a[0])).sum() > 10
     np.testing.assert_array_equal(a[0], b[0])
     np.testing.assert_array_equal(a[1], b[1])
+
+
+def test_a_true_point_in_a_hull_sliver_thinner_than_the_coarse_step_is_found(views, monkeypatch):
+    """One ray along z: its true point (sd 0) sits in a 20 um sliver of the hull whose coarse
+    neighbours are penalised, while a wide hull region 3 mm on is 0.15 mm out. The coarse
+    round prefers the wide region; refining from the deepest accepted sample too finds the
+    true point (the binary shaft's false reject)."""
+    others = [v for i, v in enumerate(views) if i != 0]
+    bounds = np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 12.0]])
+    lip = bk._lipschitz_px_per_mm(others, bounds)
+    centre, wide = 5.125, (8.0, 10.0)  # coarse samples at 5.0 and 5.25: 0.125 mm from the sliver
+
+    def gap(t):
+        return np.maximum(0.0, np.maximum(wide[0] - t, t - wide[1]))
+
+    def fake_violation(X, views, limit=np.inf, skip=-1):
+        t = X[:, 2]
+        return np.minimum(lip * np.maximum(0.0, np.abs(t - centre) - 0.01), lip * gap(t))
+
+    def sd(X):
+        t = X[:, 2]
+        return np.minimum(np.abs(t - centre), 0.15 + gap(t))
+
+    monkeypatch.setattr(bk, "hull_violation", fake_violation)
+    pts, dev, seg, ok = bk.select_on_rays(np.zeros(3), np.array([[0.0, 0.0, 1.0]]), views, 0, sd, bounds,
+                                          step_mm=0.25, refine_levels=3)
+    assert ok[0]
+    assert abs(pts[0, 2] - centre) < 0.01 and dev[0] < 0.005, (pts[0], dev[0])
