@@ -74,6 +74,22 @@ def _hard_edged(above: np.ndarray, partial: int) -> bool:
     return partial < 0.1 * max(sk.edge_pixel_count(above), 1)
 
 
+#: Share of the image border above which the "object" is the background. A part is framed
+#: by the background (a shaft across the view covers a few per cent of the border, a part
+#: filling half the view a half); an inverted polarity gives the whole border.
+INVERTED_BORDER_FRACTION = 0.75
+
+
+def _polarity_check(camera: str, mask: np.ndarray, polarity: str, source: str) -> None:
+    share = sk.border_fraction(mask)
+    if share > INVERTED_BORDER_FRACTION:
+        other = "bright-object" if polarity == "dark-object" else "dark-object"
+        raise StageError(
+            f"camera {camera}: the object covers {share:.0%} of the image border, so it is the background: "
+            f"the polarity looks inverted: {polarity}, from {source}; the image looks {other}"
+        )
+
+
 def _contrast_check(camera: str, bg_level: float, fg_level: float) -> None:
     if fg_level - bg_level < 10.0:
         raise StageError(f"camera {camera}: empty silhouette (no contrast between object and background)")
@@ -152,8 +168,12 @@ def segment_image(
     polarity: str,
     p: SegmentParams,
     camera: str,
+    polarity_source: str = "the segment stage",
 ) -> Silhouette:
     """One camera image -> :class:`Silhouette` (pure function of its inputs).
+
+    ``polarity_source`` names where ``polarity`` came from, for the message when the
+    image's background comes out as the object (an inverted polarity).
 
     Full-image passes find the coverage, its 0.5 threshold and the components; the
     contour work runs on a crop around the kept components (same points as on the whole
@@ -168,6 +188,7 @@ def segment_image(
     if comps.box is None:
         raise StageError(f"camera {camera}: empty silhouette (no object region of {p.min_area_px} px or more)")
     mask = comps.mask
+    _polarity_check(camera, mask, polarity, polarity_source)
     if comps.removed is not None:
         soft[comps.removed] = 0.0  # coverage >= 0.5 only on the kept components
     border = sk.touches_border(mask)
@@ -190,6 +211,7 @@ def segment_image(
 def run_segment(ctx: InspectionContext, p: SegmentParams) -> InspectionContext:
     cap = ctx.capture
     polarity = cap.polarity if p.polarity == "auto" else p.polarity
+    source = "the recipe's segment stage" if p.polarity != "auto" else "capture.json (dark-object when it has none)"
     use_bg = p.background == "on" or (p.background == "auto" and bool(cap.backgrounds))
     for cam in cap.rig:
         if use_bg and cap.backgrounds.get(cam.name) is None:
@@ -197,7 +219,7 @@ def run_segment(ctx: InspectionContext, p: SegmentParams) -> InspectionContext:
 
     def one(cam):
         bg = cap.backgrounds.get(cam.name) if use_bg else None
-        return segment_image(cap.images[cam.name], bg, polarity, p, cam.name)
+        return segment_image(cap.images[cam.name], bg, polarity, p, cam.name, source)
 
     # OpenCV, the compiled contouring and numpy on whole images release the GIL: cameras
     # in parallel threads.

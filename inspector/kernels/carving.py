@@ -1075,6 +1075,21 @@ def _mixed_cubes(pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mixed, corners
 
 
+#: Most nodes of the display mesh's grid (its signs are a float32 volume: 256 MiB).
+MAX_MESH_NODES = 1 << 26
+
+
+def _mesh_pitch(lo: np.ndarray, hi: np.ndarray, mv: float) -> float:
+    """The display mesh's pitch, mm: ``mv``, coarsened so that its grid over [lo, hi] (plus
+    one cell on each side) has at most :data:`MAX_MESH_NODES` nodes. A reconstruction that
+    large is a wrong segmentation or calibration; it must not exhaust the memory."""
+    ext = np.asarray(hi, float) - np.asarray(lo, float) + 2.0 * mv
+    while float(np.prod(np.ceil(ext / mv) + 1.0)) > MAX_MESH_NODES:
+        mv *= 1.25
+        ext = np.asarray(hi, float) - np.asarray(lo, float) + 2.0 * mv
+    return mv
+
+
 def _mesh(
     views: Sequence[_View], lo: np.ndarray, hi: np.ndarray, mv: float, jit: Any = None, stack: Any = None
 ) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -1412,6 +1427,7 @@ def carve(
     mv = float(mesh_voxel_mm) if mesh_voxel_mm else max(voxel_mm, 0.5)
     info: dict[str, Any] = dict(mesh_grid=0, mesh_evaluated=0)
     if np.all(np.isfinite(occ_lo)) and len(points):
+        mv = _mesh_pitch(occ_lo, occ_hi, mv)
         verts, faces, info = _mesh(views, occ_lo - mv, occ_hi + mv, mv, jit, stack)
     else:
         verts, faces = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)

@@ -447,6 +447,16 @@ def grow_box(box: tuple[int, int, int, int], shape: tuple[int, ...], margin: int
     return max(y0 - margin, 0), min(y1 + margin, h), max(x0 - margin, 0), min(x1 + margin, w)
 
 
+def border_fraction(mask: np.ndarray) -> float:
+    """Fraction of the image's border pixels that are object pixels, of a (H, W) mask."""
+    h, w = mask.shape[:2]
+    if h < 2 or w < 2:
+        return float(np.count_nonzero(mask)) / max(mask.size, 1)
+    on = (np.count_nonzero(mask[0]) + np.count_nonzero(mask[-1])
+          + np.count_nonzero(mask[1:-1, 0]) + np.count_nonzero(mask[1:-1, -1]))
+    return on / (2 * w + 2 * (h - 2))
+
+
 def touches_border(mask: np.ndarray) -> bool:
     """True when the mask has object pixels on the image border."""
     return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())

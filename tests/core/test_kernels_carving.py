@@ -597,3 +597,17 @@ def test_numba_backend_matches_numpy_without_levels(rig_lo, cube_lo):
     """The coarse cells are the finest ones (no parent level: the separate Newton kernel)."""
     pytest.importorskip("numba")
     _assert_backends_agree(rig_lo, cube_lo, voxel_mm=1.0, coarse_mm=1.0)
+
+
+def test_the_display_mesh_grid_is_coarsened_to_fit_its_memory_bound(rig_lo, sphere_lo, monkeypatch):
+    # A reconstruction as large as the rig (a background taken for the object) once asked
+    # for a 24 GiB display grid; the grid is now capped, the points are untouched.
+    st: dict = {}
+    full = ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, stats=st)
+    assert st["mesh_voxel_mm"] == 0.5
+    monkeypatch.setattr(ck, "MAX_MESH_NODES", st["mesh_grid"] // 8)
+    capped: dict = {}
+    rec = ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, stats=capped)
+    assert capped["mesh_grid"] <= st["mesh_grid"] // 8
+    assert capped["mesh_voxel_mm"] > 1.0
+    assert len(rec.faces) > 100 and np.array_equal(rec.points, full.points)

@@ -308,3 +308,23 @@ def test_evaluate_a_defect_seen_by_one_camera_only_does_not_reject():
     two = evaluate(_eval_ctx(dev, pts, cameras=[3, 3, 3, 3, 3, 7]), EvaluateParams()).evaluation
     assert two.verdict == "fail" and two.defects[0].n_points == 6
     assert evaluate(_eval_ctx(dev, pts, cameras=np.full(6, 3)), EvaluateParams(min_cameras=1)).evaluation.verdict == "fail"
+
+
+def test_an_inverted_polarity_is_named_instead_of_carving_the_background(small):
+    # A dark part declared bright: the background became the object, the carve then asked
+    # for a 24 GiB display grid. The segment stage now says what is wrong, per camera.
+    cap = Capture(small.name, small.rig, dict(small.images), polarity="bright-object")
+    with pytest.raises(StageError, match=r"camera cam00: the object covers 100% of the image border, so it is the "
+                       r"background: the polarity looks inverted: bright-object, from capture\.json"):
+        _segment(cap)
+
+
+def test_a_part_running_off_one_side_is_not_taken_for_an_inverted_polarity(small):
+    from inspector.kernels.silhouette import border_fraction
+
+    imgs = dict(small.images)
+    img = imgs["cam00"].copy()
+    img[:, : img.shape[1] // 2 + 2] = 30  # a dark object over the left half of the view
+    imgs["cam00"] = img
+    sil = _segment(Capture(small.name, small.rig, imgs)).silhouettes[0]
+    assert sil.touches_border and 0.5 < border_fraction(sil.mask) < 0.75
