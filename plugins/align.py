@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from inspector import hookimpl
 from inspector.errors import StageError
 from inspector.params import param
@@ -33,9 +35,25 @@ def run_align(ctx: InspectionContext, p: AlignParams) -> InspectionContext:
     )
     if a.fitness < p.min_fitness:
         raise StageError(
-            f"align: the reference does not match the reconstruction (fitness {a.fitness:.2f} < {p.min_fitness:.2f}): wrong reference or part?"
+            f"the reference does not match the reconstruction (fitness {a.fitness:.2f} < {p.min_fitness:.2f}): "
+            f"{_size_hint(ref.vertices, recon.points)}"
         )
     return ctx.evolve(alignment=a)
+
+
+#: Size ratios (reference / part) that betray a unit mistake, and what it then likely is.
+_UNIT_RATIOS = ((1e-3, "a mesh in metres?"), (1e3, "a mesh in micrometres?"), (1 / 25.4, "a mesh in inches?"))
+
+
+def _size_hint(ref_vertices: np.ndarray, points: np.ndarray) -> str:
+    """Why a reference may not match: its size against the reconstruction's (bounding-box
+    diagonals, mm), and the likely unit mistake when their ratio is one."""
+    size = float(np.linalg.norm(np.ptp(ref_vertices, axis=0)))
+    part = float(np.linalg.norm(np.ptp(points, axis=0)))
+    ratio = max(size, 1e-12) / max(part, 1e-12)
+    # A hull's bulges make the part look up to ~1.5x its size; the units are 25x apart.
+    unit = next((why for r, why in _UNIT_RATIOS if abs(np.log(ratio / r)) < np.log(2.0)), "wrong reference or part?")
+    return f"the reference is {size:.3g} mm across, the part {part:.3g} mm: {unit}"
 
 
 @hookimpl

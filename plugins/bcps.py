@@ -51,7 +51,7 @@ class SurfaceParams:
 def _bounds(ctx: InspectionContext, margin: float) -> np.ndarray:
     pts = ctx.need("reconstruction", "bcps").points
     if len(pts) == 0:
-        raise StageError("bcps: the reconstruction is empty")
+        raise StageError("the reconstruction is empty")
     return np.stack([pts.min(axis=0) - margin, pts.max(axis=0) + margin])
 
 
@@ -129,7 +129,7 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
 
 def _assemble(out: dict[str, list[np.ndarray]], method: str) -> BcpsPoints:
     if not out["points"] or sum(len(a) for a in out["points"]) == 0:
-        raise StageError("bcps: no contour ray met the reconstruction (no point selected)")
+        raise StageError("no contour ray met the reconstruction (no point selected)")
     return BcpsPoints(
         points=np.concatenate(out["points"]),
         deviation=np.concatenate(out["deviation"]),

@@ -32,7 +32,7 @@ def run_carve(ctx: InspectionContext, p: CarveParams) -> InspectionContext:
         mesh_voxel_mm=p.mesh_voxel_mm or None,
     )
     if len(recon.points) == 0:
-        raise StageError("carve: the silhouettes have no common volume (check the calibration in rig.json)")
+        raise StageError("the silhouettes have no common volume (check the calibration in rig.json)")
     return ctx.evolve(reconstruction=recon)
 
 

@@ -243,6 +243,20 @@ def test_align_from_a_random_orientation(small):
     assert d.max() < 0.5  # 0.4 mm/px rig, visual-hull bulges: within about a pixel
 
 
+@pytest.mark.parametrize("scale, hint", [(1e-3, "a mesh in metres?"), (1 / 25.4, "a mesh in inches?"),
+                                         (0.3, "wrong reference or part?")])
+def test_a_reference_of_the_wrong_size_is_refused_with_both_sizes(small, scale, hint):
+    from inspector_plugins.align import AlignParams, run_align
+    from inspector_plugins.carve import CarveParams, run_carve
+
+    cube = Reference.load("builtin:cube30")
+    ctx = run_carve(_segment(small), CarveParams(voxel_mm=0.8))
+    ctx = ctx.evolve(reference=Reference("small", cube.vertices * scale, cube.faces))
+    with pytest.raises(StageError, match=r"^the reference does not match the reconstruction \(fitness 0\.\d\d < 0\.30\): "
+                       rf"the reference is [\d.]+ mm across, the part [\d.]+ mm: {hint.replace('?', '[?]')}$"):
+        run_align(ctx, AlignParams())
+
+
 def test_bcps_surface_method_runs_and_is_signed_argmin(small):
     from inspector_plugins.align import AlignParams, run_align
     from inspector_plugins.bcps import SurfaceParams, _run, select_surface
