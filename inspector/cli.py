@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -51,15 +52,16 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
     from inspector.runner import exit_status, run_batch
 
     pm, recipe, ref = _load(recipe_path, reference)
+    outdir = _result_folder(out)
     if captures:
         from inspector_drivers.replay import ReplayDriver, ReplayParams, expand
 
-        driver = ReplayDriver(ReplayParams(tuple(captures)))
-        total = len(expand(list(captures)))
+        folders = _distinct_names(expand(list(captures)))
+        driver = ReplayDriver(ReplayParams(tuple(str(f) for f in folders)))
+        total = len(folders)
     else:
         driver = recipe.driver.spec.open(recipe.driver.params)
         total = getattr(recipe.driver.params, "count", None)
-    outdir = Path(out)
     results = []
     counter = {"i": 0}
 
@@ -72,6 +74,8 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
     try:
         for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
             results.append(outcome.result)
+            if quiet and outcome.result.verdict == "error":  # no progress lines, but no silent error
+                _err(f"{outcome.result.capture}: {outcome.result.error}")
     finally:
         driver.close()
     if not results:
@@ -81,6 +85,38 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
         n = {v: sum(r.verdict == v for r in results) for v in ("pass", "fail", "error")}
         print(f"{len(results)} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {outdir.resolve()}")
     return status
+
+
+def _result_folder(out: str) -> Path:
+    """``--out``, created now: a folder that cannot be written is a command error, before
+    anything is inspected."""
+    outdir = Path(out)
+    if outdir.exists() and not outdir.is_dir():
+        raise RecipeError(f"--out {out}: is a file, not a folder")
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise RecipeError(f"--out {out}: cannot create the result folder ({e.strerror or e})") from None
+    if not os.access(outdir, os.W_OK | os.X_OK):
+        raise RecipeError(f"--out {out}: the result folder is not writable")
+    return outdir
+
+
+def _distinct_names(folders: Sequence[Path]) -> list[Path]:
+    """The capture folders once each; two different folders with the same name would write
+    the same result folder (OUTDIR/<name>/): refused, naming both."""
+    seen: dict[str, Path] = {}
+    out = []
+    for f in folders:
+        key = f.name or str(f)
+        if key in seen:
+            if seen[key].resolve() == f.resolve():
+                continue  # the same capture given twice: inspected once
+            raise RecipeError(f"--capture: {seen[key]} and {f} are both named {key!r}; "
+                              f"their results would overwrite each other in OUTDIR/{key}/")
+        seen[key] = f
+        out.append(f)
+    return out
 
 
 # -- simulate --------------------------------------------------------------------------
@@ -251,7 +287,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--capture", nargs="+", metavar="DIR", help="capture folders, or folders of capture folders (default: the recipe's driver)")
     r.add_argument("--out", required=True, metavar="OUTDIR", help="result folder (one sub-folder per capture)")
     r.add_argument("--reference", metavar="MESH", help="reference mesh (STL/PLY/OBJ in mm, or builtin:NAME); replaces the recipe's")
-    r.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress lines (capture errors are still printed, on stderr)")
 
     d = sub.add_parser("demo", help="simulate a good and a defective cube and inspect them")
     d.add_argument("--out", default="out/demo", help="where captures and results go (default out/demo)")

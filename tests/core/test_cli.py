@@ -156,6 +156,40 @@ def test_missing_capture_folder(tmp_path, small_capture):
     assert res["verdict"] == "error" and "nowhere" in res["error"]
 
 
+def test_quiet_mode_still_prints_an_error_on_stderr(tmp_path, small_capture, capsys):
+    code = run_cli("run", DEFAULT, "--capture", str(tmp_path / "nowhere"), "--out", str(tmp_path / "o"),
+                   "--reference", "builtin:cube30", "-q")
+    assert code == 3
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.strip() == f"inspector: error: nowhere: capture folder {tmp_path / 'nowhere'}: does not exist"
+
+
+@pytest.mark.parametrize("how, needle", [("file", "is a file, not a folder"), ("under-a-file", "cannot create the result folder")])
+def test_an_unwritable_result_folder_is_a_command_error_before_any_inspection(how, needle, tmp_path, small_capture, capsys):
+    blocker = tmp_path / "blocker"
+    blocker.write_text("not a folder")
+    out = blocker if how == "file" else blocker / "results"
+    code = run_cli("run", DEFAULT, "--capture", str(small_capture), "--out", str(out), "--reference", "builtin:cube30")
+    assert code == 2
+    line = _stderr_line(capsys)
+    assert line.startswith(f"inspector: error: --out {out}: ") and needle in line
+    assert capsys.readouterr().out == ""  # nothing inspected
+
+
+def test_two_captures_of_the_same_name_are_refused_and_one_given_twice_is_inspected_once(tmp_path, small_capture, capsys):
+    a = _copy(small_capture, tmp_path / "day1" / "part7")
+    b = _copy(small_capture, tmp_path / "day2" / "part7")
+    code = run_cli("run", DEFAULT, "--capture", str(a), str(b), "--out", str(tmp_path / "o"), "--reference", "builtin:cube30")
+    assert code == 2
+    assert _stderr_line(capsys) == (f"inspector: error: --capture: {a} and {b} are both named 'part7'; "
+                                    "their results would overwrite each other in OUTDIR/part7/")
+    assert not (tmp_path / "o" / "part7").exists()
+    code = run_cli("run", DEFAULT, "--capture", str(a), str(a), "--out", str(tmp_path / "o"), "--reference", "builtin:cube30")
+    assert code in (0, 1)
+    assert "1 inspected" in capsys.readouterr().out
+
+
 def _stderr_line(capsys) -> str:
     err = capsys.readouterr().err.strip().splitlines()
     assert err and "Traceback" not in "\n".join(err)
