@@ -7,6 +7,7 @@ it reads only the CONTRACT outputs, so it works on any result folder, later, els
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,25 +23,21 @@ def render_report(folder: Path, out: Path | None = None) -> Path:
     import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
 
-    from inspector.errors import InputError
-    from inspector.outputs import BCPS_PLY, read_ply
-
     folder = Path(folder)
-    try:
-        res = json.loads((folder / "result.json").read_text())
-    except (OSError, ValueError) as e:
-        raise InputError(f"{folder / 'result.json'}: cannot read ({type(e).__name__})") from None
+    res = _read_result(folder / "result.json")
+    named = (res.get("points") or {}).get("bcps")
+    points = None
+    if res["verdict"] != "error" and named:
+        points = _read_points(folder / str(named))
     out = out or folder / "deviation.png"
     fig = plt.figure(figsize=(13, 4.8), dpi=110)
     title = f"{res['capture']}  —  {res['verdict'].upper()}"
-    if res["verdict"] == "error" or not (folder / BCPS_PLY).is_file():
+    if points is None:
         fig.text(0.5, 0.5, f"{title}\n{res.get('error') or 'no BCPS points'}", ha="center", va="center", fontsize=13)
         fig.savefig(out)
         plt.close(fig)
         return out
-    p = read_ply(folder / BCPS_PLY)
-    X = np.stack([p["x"], p["y"], p["z"]], axis=1).astype(float)
-    dev = p["deviation"].astype(float)
+    X, dev = points
     pose = np.array(res["pose"], float)
     L = (X - pose[:3, 3]) @ pose[:3, :3]  # reference frame: what the drawing shows
     tol = res["stats"].get("tolerance_mm", {"lower": -0.1, "upper": 0.1})
@@ -72,6 +69,44 @@ def render_report(folder: Path, out: Path | None = None) -> Path:
     return out
 
 
+def _read_result(path: Path) -> dict:
+    """result.json (CONTRACT) with what the picture needs checked; InputError otherwise."""
+    from inspector.errors import InputError
+
+    try:
+        res = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"{path}: cannot read ({type(e).__name__})") from None
+    if not isinstance(res, dict):
+        raise InputError(f"{path}: not a result (a JSON object is expected)")
+    need = ("capture", "verdict") if res.get("verdict") == "error" else ("capture", "verdict", "pose", "stats")
+    missing = [k for k in need if k not in res]
+    if missing:
+        raise InputError(f"{path}: missing key {missing[0]!r}")
+    if res["verdict"] != "error":
+        pose = np.asarray(res["pose"], dtype=object)
+        if pose.shape != (4, 4):
+            raise InputError(f"{path}: pose must be a 4x4 matrix")
+    return res
+
+
+def _read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """BCPS points (N, 3) world mm and their deviations (N,) mm from a bcps_points.ply."""
+    from inspector.errors import InputError
+    from inspector.outputs import read_ply
+
+    if not path.is_file():
+        raise InputError(f"{path}: missing (result.json names it)")
+    try:
+        p = read_ply(path)
+    except Exception as e:  # noqa: BLE001 - plyfile raises several types for a bad file
+        raise InputError(f"{path}: not a readable PLY ({' '.join(str(e).split())})") from None
+    absent = [k for k in ("x", "y", "z", "deviation") if k not in p]
+    if absent:
+        raise InputError(f"{path}: no vertex property {absent[0]!r}")
+    return np.stack([p["x"], p["y"], p["z"]], axis=1).astype(float), p["deviation"].astype(float)
+
+
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("report", help="draw deviation.png for result folders (from result.json and bcps_points.ply)")
     p.add_argument("results", nargs="+", metavar="RESULT_DIR", help="result folders (one per capture) or their parent")
@@ -89,6 +124,6 @@ def run(args) -> int:
         try:
             print(f"wrote {render_report(f)}", flush=True)
         except InputError as e:
-            print(f"inspector: error: {e}", flush=True)
+            print(f"inspector: error: {e}", file=sys.stderr, flush=True)
             status = 3
     return status

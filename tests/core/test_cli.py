@@ -305,3 +305,40 @@ def test_report_draws_the_deviation_picture(e2e):
     assert img is not None and img.shape[0] > 300 and img.shape[1] > 800
     # Not a blank page: the scatter and the colour bar put many colours on it.
     assert len(np.unique(img.reshape(-1, 3), axis=0)) > 50
+
+
+def _result_folder(folder: Path, **changes) -> Path:
+    """A result folder as `inspector run` writes it (CONTRACT), with ``changes`` to result.json."""
+    from inspector.outputs import write_ply
+
+    folder.mkdir(parents=True)
+    rng = np.random.default_rng(3)
+    xyz = rng.normal(0.0, 10.0, (500, 3)).astype(np.float32)
+    write_ply(folder / "bcps_points.ply", {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
+                                           "deviation": rng.normal(0.0, 0.03, 500).astype(np.float32)})
+    res = {"capture": folder.name, "recipe": "default", "verdict": "pass", "error": None, "timings_s": {},
+           "pose": np.eye(4).tolist(), "stats": {}, "defects": [],
+           "points": {"bcps": "bcps_points.ply", "reconstruction": None}}
+    res.update(changes)
+    (folder / "result.json").write_text(json.dumps({k: v for k, v in res.items() if v is not ...}))
+    return folder
+
+
+def test_report_names_the_damaged_file_and_draws_the_others(tmp_path, capsys):
+    good = _result_folder(tmp_path / "r" / "a-good")
+    _result_folder(tmp_path / "r" / "b-nopose", pose=...)
+    cut = _result_folder(tmp_path / "r" / "c-truncated")
+    data = (cut / "bcps_points.ply").read_bytes()
+    (cut / "bcps_points.ply").write_bytes(data[: len(data) // 2])
+    gone = _result_folder(tmp_path / "r" / "d-noply")
+    (gone / "bcps_points.ply").unlink()
+    assert run_cli("report", str(tmp_path / "r")) == 3
+    out, err = capsys.readouterr()
+    assert out.strip() == f"wrote {good / 'deviation.png'}"
+    r = tmp_path / "r"
+    lines = err.strip().splitlines()
+    assert len(lines) == 3
+    assert lines[0] == f"inspector: error: {r / 'b-nopose' / 'result.json'}: missing key 'pose'"
+    assert lines[1].startswith(f"inspector: error: {r / 'c-truncated' / 'bcps_points.ply'}: not a readable PLY (")
+    assert lines[1].endswith("early end-of-file)")
+    assert lines[2] == f"inspector: error: {r / 'd-noply' / 'bcps_points.ply'}: missing (result.json names it)"
