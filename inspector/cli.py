@@ -374,7 +374,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as e:
         _err(f"{e.filename or ''}: {e.strerror or e}".strip(": "))
         return EXIT_ERROR
+    except Exception as e:  # noqa: BLE001 - a bug: one line for the user, the traceback kept for us
+        _err(f"internal error {type(e).__name__}: {' '.join(str(e).split())} (traceback in {_save_traceback()})")
+        return EXIT_ERROR
     return EXIT_INVALID
+
+
+def _save_traceback() -> str:
+    """Write the current exception's traceback to a file in the temporary folder; its path."""
+    import tempfile
+    import time
+    import traceback
+
+    path = Path(tempfile.gettempdir()) / f"inspector-traceback-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.txt"
+    try:
+        path.write_text(traceback.format_exc())
+    except OSError:
+        return "(could not be written)"
+    return str(path)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,6 +1,7 @@
 """Errors a user may see. Each carries a one-line message that names the file, camera or key.
 
-The CLI prints ``str(error)`` and never a traceback for these; anything else is a bug.
+The CLI prints ``str(error)`` and never a traceback for these; anything else is a bug,
+which the CLI reports as one "internal error" line, its traceback saved to a file.
 """
 
 from __future__ import annotations

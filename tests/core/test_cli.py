@@ -342,3 +342,22 @@ def test_report_names_the_damaged_file_and_draws_the_others(tmp_path, capsys):
     assert lines[1].startswith(f"inspector: error: {r / 'c-truncated' / 'bcps_points.ply'}: not a readable PLY (")
     assert lines[1].endswith("early end-of-file)")
     assert lines[2] == f"inspector: error: {r / 'd-noply' / 'bcps_points.ply'}: missing (result.json names it)"
+
+
+def test_a_bug_is_one_line_for_the_user_and_its_traceback_is_kept(monkeypatch, tmp_path, capsys):
+    import inspector.cli as cli
+
+    def broken(args):
+        raise RuntimeError("something\nunexpected")
+
+    monkeypatch.setattr(cli, "_plugins", broken)
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", None)  # re-read TMPDIR
+    assert run_cli("plugins") == 3
+    err = capsys.readouterr().err
+    saved = list(tmp_path.glob("inspector-traceback-*.txt"))
+    assert len(saved) == 1
+    assert err == f"inspector: error: internal error RuntimeError: something unexpected (traceback in {saved[0]})\n"
+    assert "Traceback" in saved[0].read_text() and "raise RuntimeError" in saved[0].read_text()
