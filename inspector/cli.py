@@ -62,7 +62,9 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
     else:
         driver = recipe.driver.spec.open(recipe.driver.params)
         total = getattr(recipe.driver.params, "count", None)
-    results = []
+    # Only the verdicts are kept: a live driver or a long batch must not hold every
+    # result's points in memory (5 MB a capture).
+    verdicts: list[str] = []
     counter = {"i": 0}
 
     def progress(line: str) -> None:
@@ -73,17 +75,18 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
 
     try:
         for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
-            results.append(outcome.result)
+            verdicts.append(outcome.result.verdict)
             if quiet and outcome.result.verdict == "error":  # no progress lines, but no silent error
                 _err(f"{outcome.result.capture}: {outcome.result.error}")
+            del outcome
     finally:
         driver.close()
-    if not results:
+    if not verdicts:
         raise RecipeError("no capture to inspect")
-    status = exit_status(results)
+    status = exit_status(verdicts)
     if not quiet:
-        n = {v: sum(r.verdict == v for r in results) for v in ("pass", "fail", "error")}
-        print(f"{len(results)} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {outdir.resolve()}")
+        n = {v: verdicts.count(v) for v in ("pass", "fail", "error")}
+        print(f"{len(verdicts)} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {outdir.resolve()}")
     return status
 
 

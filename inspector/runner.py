@@ -166,11 +166,15 @@ def run_batch(
         if progress is not None:
             progress(outputs.one_line(outcome.result))
         yield outcome
+        outcome = capture = None  # not alive while the next capture is read and inspected
 
 
-def exit_status(results: Iterable[InspectionResult]) -> int:
-    """CONTRACT exit status: 3 if any capture errored, else 1 if any failed, else 0."""
-    verdicts = {r.verdict for r in results}
+def exit_status(results: Iterable[InspectionResult | str]) -> int:
+    """CONTRACT exit status: 3 if any capture errored, else 1 if any failed, else 0.
+
+    ``results``: the results, or only their verdicts.
+    """
+    verdicts = {r if isinstance(r, str) else r.verdict for r in results}
     if "error" in verdicts:
         return 3
     if "fail" in verdicts:

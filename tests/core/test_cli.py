@@ -361,3 +361,27 @@ def test_a_bug_is_one_line_for_the_user_and_its_traceback_is_kept(monkeypatch, t
     assert len(saved) == 1
     assert err == f"inspector: error: internal error RuntimeError: something unexpected (traceback in {saved[0]})\n"
     assert "Traceback" in saved[0].read_text() and "raise RuntimeError" in saved[0].read_text()
+
+
+def test_a_batch_keeps_no_inspection_in_memory_once_it_is_written(monkeypatch, tmp_path, small_capture):
+    # A live driver runs for days: each result (points, reconstruction, 5 MB) must be
+    # released once written, not kept until the end of the run.
+    import gc
+    import weakref
+
+    import inspector.runner as runner
+
+    run_batch, refs, kept = runner.run_batch, [], []
+
+    def watched(*args, **kwargs):
+        for outcome in run_batch(*args, **kwargs):
+            gc.collect()
+            kept.append(sum(ref() is not None for ref in refs))  # earlier results still in memory
+            refs.append(weakref.ref(outcome.result))
+            yield outcome
+
+    monkeypatch.setattr(runner, "run_batch", watched)
+    caps = [_copy(small_capture, tmp_path / "c" / f"part{i}") for i in range(3)]
+    assert run_cli("run", DEFAULT, "--capture", *map(str, caps), "--out", str(tmp_path / "o"),
+                   "--reference", "builtin:cube30", "-q") in (0, 1)
+    assert kept == [0, 0, 0]
