@@ -65,6 +65,7 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
     # Only the verdicts are kept: a live driver or a long batch must not hold every
     # result's points in memory (5 MB a capture).
     verdicts: list[str] = []
+    warned: set[str] = set()
     counter = {"i": 0}
 
     def progress(line: str) -> None:
@@ -76,6 +77,10 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
     try:
         for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
             verdicts.append(outcome.result.verdict)
+            for w in outcome.result.stats.get("warnings", ()):
+                if w not in warned:  # once per run, not once per part
+                    warned.add(w)
+                    print(f"inspector: warning: {outcome.result.capture}: {w}", file=sys.stderr, flush=True)
             if quiet and outcome.result.verdict == "error":  # no progress lines, but no silent error
                 _err(f"{outcome.result.capture}: {outcome.result.error}")
             del outcome

@@ -385,3 +385,13 @@ def test_a_batch_keeps_no_inspection_in_memory_once_it_is_written(monkeypatch, t
     assert run_cli("run", DEFAULT, "--capture", *map(str, caps), "--out", str(tmp_path / "o"),
                    "--reference", "builtin:cube30", "-q") in (0, 1)
     assert kept == [0, 0, 0]
+
+
+def test_a_capability_warning_is_printed_once_per_run_and_kept_in_each_result(tmp_path, small_capture, capsys):
+    caps = [_copy(small_capture, tmp_path / "c" / f"part{i}") for i in range(2)]  # a 0.4 mm/px rig, +-0.1 mm
+    run_cli("run", DEFAULT, "--capture", *map(str, caps), "--out", str(tmp_path / "o"), "--reference", "builtin:cube30", "-q")
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("inspector: warning: ")]
+    assert len(warnings) == 1 and warnings[0].startswith("inspector: warning: part0: tolerance [-0.1, +0.1] mm is 0.25 px")
+    for i in range(2):
+        res = json.loads((tmp_path / "o" / f"part{i}" / "result.json").read_text())
+        assert res["stats"]["warnings"] == [warnings[0].split(": ", 3)[3]]

@@ -342,3 +342,35 @@ def test_a_part_running_off_one_side_is_not_taken_for_an_inverted_polarity(small
     imgs["cam00"] = img
     sil = _segment(Capture(small.name, small.rig, imgs)).silhouettes[0]
     assert sil.touches_border and 0.5 < border_fraction(sil.mask) < 0.75
+
+
+@pytest.mark.parametrize("footprint, default, region, expected", [
+    (0.1, Band(-0.1, 0.1), None, None),                 # the designed rig: 1 px
+    (0.2, Band(-0.1, 0.1), None, None),                 # 0.5 px: no false reject measured
+    (0.25, Band(-0.1, 0.1), None, "tolerance [-0.1, +0.1] mm is 0.40 px at this rig's 0.25 mm pixel footprint"),
+    (0.1, Band(-0.1, 0.1), Band(-0.02, 0.5), "tolerance of region 'seat' [-0.02, +0.5] mm is 0.20 px"),
+    (0.1, Band(0.0, 0.2), None, "tolerance [+0, +0.2] mm is 0.00 px"),
+])
+def test_a_tolerance_narrower_than_half_a_pixel_is_warned_about(footprint, default, region, expected):
+    from inspector_plugins.evaluate import capability_warning
+
+    regions = () if region is None else (Region("seat", (-1, -1, -1), (1, 1, 1), region),)
+    got = capability_warning(Tolerance(default, regions), footprint)
+    if expected is None:
+        assert got is None
+    else:
+        assert got.startswith(expected) and got.endswith("widen it or use a finer rig")
+
+
+def test_evaluate_records_the_footprint_and_the_capability_warning(small):
+    from inspector_plugins.evaluate import EvaluateParams, evaluate
+
+    rng = np.random.default_rng(1)
+    ctx = _eval_ctx(rng.normal(0, 0.01, 50), rng.uniform(-15, 15, (50, 3)))
+    ctx = ctx.evolve(capture=small, tolerance=Tolerance(Band(-0.05, 0.05)))
+    stats = evaluate(ctx, EvaluateParams()).evaluation.stats
+    fp = small.rig.footprint_mm()
+    assert stats["footprint_mm"] == fp and fp > 0.1  # the small test rig: 0.4 mm/px
+    assert stats["warnings"] == [
+        f"tolerance [-0.05, +0.05] mm is {0.05 / fp:.2f} px at this rig's {fp:.3g} mm pixel footprint: below 0.5 px "
+        "image noise alone can reject good parts; widen it or use a finer rig"]
