@@ -56,8 +56,9 @@ __all__ = [
     "to_image",
 ]
 
-#: Imaging conditions of the acceptance requirement.
-CONDITIONS = ("grey", "binary", "strong")
+#: Imaging conditions of the acceptance requirement, and ``exact``: what the silhouettes
+#: themselves allow (no noise, 16-bit, so the image is the exact coverage to 1/50000).
+CONDITIONS = ("grey", "binary", "strong", "exact")
 #: Defects applied to the true part (the reference stays nominal).
 DEFECTS = ("none", "scale", "bump_removed", "scale_up", "bump_added")
 #: Grey levels (background, object) for a dark object on a bright (backlit) background.
@@ -397,23 +398,26 @@ def coverage(geom: shapely.Geometry, width: int, height: int, tile: int = 16) ->
 
 
 def to_image(cov: np.ndarray, condition: str, polarity: str, rng: np.random.Generator) -> np.ndarray:
-    """8-bit image of a silhouette coverage map under an imaging ``condition``.
+    """Image of a silhouette coverage map under an imaging ``condition``.
 
     Parameters
     ----------
     cov : (h, w) float
         Area coverage in [0, 1].
-    condition : {"grey", "binary", "strong"}
+    condition : {"grey", "binary", "strong", "exact"}
         ``grey``: anti-aliased (linear in coverage), Gaussian noise sigma 2;
         ``binary``: hard edges (coverage >= 0.5), noise sigma 2;
-        ``strong``: anti-aliased, sigma 6, and 1 % of the pixels replaced by 0 or 255.
+        ``strong``: anti-aliased, sigma 6, and 1 % of the pixels replaced by 0 or 255;
+        ``exact``: anti-aliased, no noise, 16-bit (levels x 257).
     polarity : {"dark-object", "bright-object"}
 
     Returns
     -------
-    (h, w) uint8
+    (h, w) uint8, or uint16 for ``exact``
     """
     bg, fg = LEVELS_DARK if polarity == "dark-object" else LEVELS_DARK[::-1]
+    if condition == "exact":
+        return np.rint(257.0 * (bg + (fg - bg) * cov)).astype(np.uint16)
     if condition == "binary":
         cov = (cov >= 0.5).astype(float)
     sigma = {"grey": 2.0, "binary": 2.0, "strong": 6.0}[condition]

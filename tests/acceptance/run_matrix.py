@@ -74,6 +74,13 @@ EXCESS_CASES = (
     Case("grey, scale 1.02", "grey", "scale_up", float("nan")),
     Case("grey, 2.5 mm bump added", "grey", "bump_added", float("nan")),
 )
+#: The silhouettes' own limit, reported, not judged: the grey rows' parts, poses and defects
+#: (same seeds) imaged without noise in 16 bits, under the grey bar. A dent row that misses
+#: it here misses it for want of information in the silhouettes, not of image processing.
+LIMIT_CASES = (
+    (0, Case("exact, scale 1.00", "exact", "none", 0.1, 0.5)),
+    (2, Case("exact, bump removed", "exact", "bump_removed", 0.1, 0.5)),
+)
 #: Backlit (dark object) for most parts, the reverse for one, to exercise both polarities.
 POLARITY = {"torus": "dark-object", "hexnut": "dark-object", "shaft": "bright-object", "housing": "dark-object"}
 
@@ -178,6 +185,30 @@ def excess_markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines + [""])
 
 
+def limit_markdown(rows: list[dict[str, Any]], judged: list[dict[str, Any]]) -> str:
+    """The silhouettes' own limit: each exact row beside the grey row of the same geometry."""
+    grey = {(r["part"], r["seed"]): r for r in judged}
+    lines = [
+        "## What the silhouettes themselves allow (measured, not judged)",
+        "",
+        "The grey rows' parts, poses and defects (same seeds), imaged without noise in 16 bits: the",
+        "image is the exact area coverage, the best input image processing could recover. What is",
+        "left is the method's own limit: a dent row that misses the grey bar here cannot be made to",
+        "meet it by better image processing. Exact images can also show a dent more than noisy",
+        "ones (a dent that changes the silhouettes by less than a pixel), so a miss here does not",
+        "by itself mean that the grey row misses.",
+        "",
+        "| part | condition | mean px | p99 px | max px | grey mean px | grey p99 px | grey bar with exact images |",
+        "|---|---|---:|---:|---:|---:|---:|---|",
+    ]
+    for r in rows:
+        g = grey.get((r["part"], r["seed"]), {})
+        res = "RUN FAILED" if r["run_failed"] else ("met" if r["ok"] else "**missed**")
+        lines.append(f"| {r['part']} | {r['condition']} | {_f(r.get('mean_px'))} | {_f(r.get('p99_px'))} | "
+                     f"{_f(r.get('max_px'), 2)} | {_f(g.get('mean_px'))} | {_f(g.get('p99_px'))} | {res} |")
+    return "\n".join(lines + [""])
+
+
 def _f(x: float | None, nd: int = 3) -> str:
     return "-" if x is None else f"{x:.{nd}f}"
 
@@ -239,6 +270,7 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"indices into CASES (0..{len(CASES) - 1})")
     ap.add_argument("--seed", type=int, default=1000, help="base seed; each row adds its own offset")
     ap.add_argument("--no-excess", action="store_true", help="skip the excess-material rows (reported, not judged)")
+    ap.add_argument("--no-limit", action="store_true", help="skip the exact-image rows (reported, not judged)")
     args = ap.parse_args(argv)
 
     fc.self_check()
@@ -261,10 +293,22 @@ def main(argv: list[str] | None = None) -> int:
                 r = excess[-1]
                 print(f"{p:8s} {c.label:24s} verdict {r.get('verdict')}: mean {_f(r.get('mean_px'))} px, "
                       f"bump shown {r.get('bump', {}).get('shown_mm', '-')}", file=sys.stderr, flush=True)
+    limit = []
+    if not args.no_limit:
+        for p in args.parts:
+            for c, case in LIMIT_CASES:
+                if c not in args.cases:
+                    continue
+                limit.append(run_case(args.work, p, case, args.seed + 100 * list(fc.PARTS).index(p) + c))
+                r = limit[-1]
+                print(f"{p:8s} {case.label:24s} verdict {r.get('verdict')}: mean {_f(r.get('mean_px'))} px, "
+                      f"p99 {_f(r.get('p99_px'))} px", file=sys.stderr, flush=True)
     total = time.perf_counter() - t0
-    md = to_markdown(rows, total) + ("\n" + excess_markdown(excess) if excess else "")
+    md = (to_markdown(rows, total) + ("\n" + excess_markdown(excess) if excess else "")
+          + ("\n" + limit_markdown(limit, rows) if limit else ""))
     args.work.mkdir(parents=True, exist_ok=True)
-    (args.work / "matrix.json").write_text(json.dumps({"total_s": total, "rows": rows, "excess": excess}, indent=1, default=str))
+    (args.work / "matrix.json").write_text(json.dumps({"total_s": total, "rows": rows, "excess": excess, "limit": limit},
+                                                      indent=1, default=str))
     if args.out_md is not None:
         args.out_md.parent.mkdir(parents=True, exist_ok=True)
         args.out_md.write_text(md)

@@ -127,6 +127,14 @@ def test_capture_folder_follows_the_contract(tmp_path):
     assert made["reference"].is_file() and made["true_mesh"].is_file()
 
 
+def test_the_exact_condition_is_the_noise_free_coverage_in_16_bit():
+    cov = np.random.default_rng(0).random((8, 8))
+    img = fc.to_image(cov, "exact", "dark-object", np.random.default_rng(1))
+    bg, fg = fc.LEVELS_DARK
+    assert img.dtype == np.uint16
+    np.testing.assert_allclose((img / 257.0 - bg) / (fg - bg), cov, atol=1e-4)
+
+
 # --------------------------------------------------------------------------- slow: the real product
 
 
