@@ -48,12 +48,39 @@ def _load(recipe_path: str, reference: str | None) -> tuple[Any, Any, Any]:
     return pm, recipe, ref
 
 
-def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: str | None, quiet: bool) -> int:
+def _watch_params(args: argparse.Namespace) -> dict[str, Any] | None:
+    """The hot-folder driver's parameters from ``--watch``, ``--count``, ``--idle-exit``."""
+    if args.watch is None:
+        for flag, value in (("--count", args.count), ("--idle-exit", args.idle_exit)):
+            if value is not None:
+                raise RecipeError(f"{flag}: only with --watch")
+        return None
+    if args.count is not None and args.count < 1:
+        raise RecipeError(f"--count: expected a number >= 1, got {args.count}")
+    if args.idle_exit is not None and not args.idle_exit > 0:
+        raise RecipeError(f"--idle-exit: expected seconds > 0, got {args.idle_exit}")
+    return {"folder": args.watch, "count": args.count or 0, "idle_exit_s": args.idle_exit or 0.0}
+
+
+def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: str | None, quiet: bool,
+         watch: dict[str, Any] | None = None) -> int:
     from inspector.runner import exit_status, run_batch
 
     pm, recipe, ref = _load(recipe_path, reference)
+    if watch is not None:
+        inbox = Path(watch["folder"]).resolve()
+        if not inbox.is_dir():
+            raise RecipeError(f"--watch {watch['folder']}: not a folder")
+        res = Path(out).resolve()
+        if res == inbox or inbox in res.parents:
+            raise RecipeError(f"--out {out}: inside the inbox --watch {watch['folder']} (its result folders would be taken for captures)")
     outdir = _result_folder(out)
-    if captures:
+    if watch is not None:
+        from inspector_drivers.replay.hotfolder import HotFolderDriver, HotFolderParams
+
+        driver = HotFolderDriver(HotFolderParams(**watch))
+        total = watch["count"] or None
+    elif captures:
         from inspector_drivers.replay import ReplayDriver, ReplayParams, expand
 
         folders = _distinct_names(expand(list(captures)))
@@ -62,6 +89,8 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
     else:
         driver = recipe.driver.spec.open(recipe.driver.params)
         total = getattr(recipe.driver.params, "count", None)
+    if hasattr(driver, "taken"):  # a hot folder: a reused capture name must not overwrite a result
+        driver.taken = lambda name: (outdir / name).exists()
     # Only the verdicts are kept: a live driver or a long batch must not hold every
     # result's points in memory (5 MB a capture).
     verdicts: list[str] = []
@@ -292,7 +321,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser("run", help="inspect captures with a recipe (batch, one process)")
     r.add_argument("recipe", help="recipe TOML file")
-    r.add_argument("--capture", nargs="+", metavar="DIR", help="capture folders, or folders of capture folders (default: the recipe's driver)")
+    src = r.add_mutually_exclusive_group()
+    src.add_argument("--capture", nargs="+", metavar="DIR", help="capture folders, or folders of capture folders (default: the recipe's driver)")
+    src.add_argument("--watch", metavar="INBOX", help="hot folder: inspect capture folders as they land in INBOX, then move them to INBOX/done/")
+    r.add_argument("--count", type=int, metavar="N", help="with --watch: stop after N captures")
+    r.add_argument("--idle-exit", type=float, metavar="S", help="with --watch: stop after S seconds without a new capture")
     r.add_argument("--out", required=True, metavar="OUTDIR", help="result folder (one sub-folder per capture)")
     r.add_argument("--reference", metavar="MESH", help="reference mesh (STL/PLY/OBJ in mm, or builtin:NAME); replaces the recipe's")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress lines (capture errors are still printed, on stderr)")
@@ -339,7 +372,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         if args.command == "run":
-            return _run(args.recipe, args.capture, args.out, args.reference, args.quiet)
+            return _run(args.recipe, args.capture, args.out, args.reference, args.quiet,
+                        watch=_watch_params(args))
         if args.command == "demo":
             return _demo(args)
         if args.command == "simulate":

@@ -61,3 +61,13 @@ def inspector_register_drivers(registry: DriverRegistry) -> None:
             doc="Capture folders on disk (rig.json, images/, background/, capture.json, truth/)",
         )
     )
+    from inspector_drivers.replay.hotfolder import HotFolderDriver, HotFolderParams
+
+    registry.add(
+        DriverSpec(
+            name="hotfolder",
+            open=HotFolderDriver,
+            params=HotFolderParams,
+            doc="Hot folder: capture folders another program drops in an inbox, inspected once complete, then moved to done/",
+        )
+    )

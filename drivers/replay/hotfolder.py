@@ -1,0 +1,218 @@
+"""Driver ``hotfolder``: inspect capture folders as another program drops them in an inbox.
+
+The production-line mode of the headless runner::
+
+    inspector run recipes/default.toml --watch INBOX --out OUT --reference part.stl
+
+Outside programs write capture folders (CONTRACT) into ``INBOX``. A folder is handed to the
+runner once it is complete and quiet:
+
+* ``rig.json`` exists and parses, and ``images/`` holds a PNG for every camera it names
+  (:func:`~inspector_drivers.replay.folder.write_capture` writes ``rig.json`` last, so its
+  folders are complete as soon as ``rig.json`` appears; other writers need not be);
+* nothing in the folder changed (names, sizes, modification times) for ``settle_s``.
+
+A folder that stays incomplete is handed over anyway once it has not changed for
+``give_up_s``: the runner then reports what is missing (``camera cam03 has no image``),
+so a broken writer shows up as an error result instead of a silent backlog.
+
+After the runner has written a capture's result, its folder is moved to ``INBOX/done/``
+(``after = "move"``, atomic on one file system), so nothing is inspected twice, even across
+restarts, and nothing is deleted. A folder whose name is already used, in ``done/`` or
+downstream (the CLI: ``OUTDIR/<name>/`` exists: a reused part number), is renamed
+``NAME-2``, ``NAME-3``... in the inbox before it is read, so its result never overwrites an
+earlier one and the result folder keeps the capture folder's name. With ``after = "keep"`` folders stay where they are and each is inspected once
+per run. Folders already in the inbox at start (a backlog) come first, oldest first.
+Names starting with ``.`` or ending in ``.tmp``/``.partial`` are ignored (writers'
+temporary folders), and so is ``done/``.
+
+The watch ends after ``count`` captures, after ``idle_exit_s`` without a new one (0:
+never), or on Ctrl-C (results written so far are kept).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+from inspector.errors import InputError, RecipeError
+from inspector.params import param
+from inspector.registry import Acquisition
+
+__all__ = ["HotFolderParams", "HotFolderDriver", "DONE_DIR", "folder_state"]
+
+#: Sub-folder of the inbox that receives inspected capture folders.
+DONE_DIR = "done"
+_TEMP_SUFFIXES = (".tmp", ".partial")
+
+
+@dataclass(frozen=True)
+class HotFolderParams:
+    folder: str = param("", "the inbox: capture folders appear in it (the CLI's --watch)")
+    settle_s: float = param(0.5, "a complete folder must be unchanged this long before it is read, s", min=0.0)
+    give_up_s: float = param(30.0, "an incomplete folder unchanged this long is handed over anyway (the result names what is missing), s", min=0.0)
+    poll_s: float = param(0.2, "how often the inbox is scanned, s", min=0.01, max=60.0)
+    idle_exit_s: float = param(0.0, "stop after this long without a new capture, s (0: never)", min=0.0)
+    count: int = param(0, "stop after this many captures (0: no limit)", min=0)
+    after: Literal["move", "keep"] = param("move", "what becomes of an inspected folder: moved to INBOX/done/, or kept in place")
+
+
+def folder_state(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """What a writer changes: (relative path, size, mtime ns) of every entry, sorted.
+
+    Never raises: an entry that vanishes while it is listed is simply not there.
+    """
+    out: list[tuple[str, int, int]] = []
+    for root, dirs, files in os.walk(folder):
+        dirs.sort()
+        for name in dirs + sorted(files):
+            p = Path(root) / name
+            try:
+                st = p.stat()
+            except OSError:
+                continue
+            out.append((str(p.relative_to(folder)), st.st_size if name in files else -1, st.st_mtime_ns))
+    return tuple(out)
+
+
+def _complete(folder: Path) -> bool:
+    """rig.json parses and every camera it names has an image (cheap; never raises)."""
+    try:
+        data = json.loads((folder / "rig.json").read_text())
+        names = [c["name"] for c in data["cameras"]]
+        return bool(names) and all((folder / "images" / f"{n}.png").is_file() for n in names)
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+
+
+@dataclass
+class _Seen:
+    state: tuple[tuple[str, int, int], ...]
+    since: float  # monotonic time the state was first seen unchanged
+
+
+@dataclass
+class HotFolderDriver:
+    """Yields one :class:`Acquisition` per capture folder that lands in ``params.folder``."""
+
+    params: HotFolderParams
+    clock: Callable[[], float] = time.monotonic
+    sleep: Callable[[float], None] = time.sleep
+    #: Whether a capture name is already used downstream (the CLI: a result folder of that
+    #: name exists). Such a folder is renamed ``NAME-2``, ``-3``... before it is read, so a
+    #: reused part number never overwrites an earlier result.
+    taken: Callable[[str], bool] = lambda name: False
+    _seen: dict[str, _Seen] = field(default_factory=dict)
+    _done: set[str] = field(default_factory=set)
+
+    def __post_init__(self) -> None:
+        inbox = Path(self.params.folder)
+        if not self.params.folder:
+            raise RecipeError("hotfolder: no inbox folder given (--watch DIR, or the driver's folder parameter)")
+        if not inbox.is_dir():
+            raise RecipeError(f"hotfolder: inbox {inbox}: not a folder")
+
+    @property
+    def inbox(self) -> Path:
+        return Path(self.params.folder)
+
+    def _candidates(self) -> list[Path]:
+        try:
+            entries = list(self.inbox.iterdir())
+        except OSError as e:
+            raise InputError(f"hotfolder: inbox {self.inbox}: cannot be read ({e.strerror or e})") from None
+        out = []
+        for p in entries:
+            n = p.name
+            if n == DONE_DIR or n.startswith(".") or n.endswith(_TEMP_SUFFIXES) or n in self._done:
+                continue
+            if p.is_dir():
+                out.append(p)
+
+        def age(p: Path) -> tuple[float, str]:
+            try:
+                return (p.stat().st_mtime, p.name)
+            except OSError:
+                return (float("inf"), p.name)
+
+        return sorted(out, key=age)
+
+    def _ready(self, folder: Path, now: float) -> bool:
+        """Complete and unchanged for settle_s, or unchanged for give_up_s."""
+        state = folder_state(folder)
+        seen = self._seen.get(folder.name)
+        if seen is None or seen.state != state:
+            self._seen[folder.name] = _Seen(state, now)
+            # A complete folder with settle_s = 0 is ready at once.
+            return self.params.settle_s == 0 and _complete(folder)
+        quiet = now - seen.since
+        return (quiet >= self.params.settle_s and _complete(folder)) or quiet >= self.params.give_up_s
+
+    def _unique(self, folder: Path) -> Path:
+        """``folder``, renamed in the inbox if its name is taken downstream or in done/."""
+        done = self.inbox / DONE_DIR
+        name, k = folder.name, 1
+        while self.taken(name) or (self.params.after == "move" and (done / name).exists()):
+            k += 1
+            name = f"{folder.name}-{k}"
+        if name == folder.name:
+            return folder
+        target = folder.with_name(name)
+        try:
+            folder.rename(target)
+        except OSError as e:
+            raise InputError(f"hotfolder: cannot rename {folder} to {target} ({e.strerror or e})") from None
+        self._seen.pop(folder.name, None)
+        return target
+
+    def _finish(self, folder: Path) -> None:
+        """The runner has written this capture's result: file the folder away."""
+        self._done.add(folder.name)
+        self._seen.pop(folder.name, None)
+        if self.params.after != "move" or not folder.exists():
+            return
+        done = self.inbox / DONE_DIR
+        done.mkdir(exist_ok=True)
+        target, k = done / folder.name, 1
+        while target.exists():  # only if done/ changed meanwhile: _unique chose a free name
+            k += 1
+            target = done / f"{folder.name}-{k}"
+        try:
+            folder.rename(target)
+        except OSError as e:
+            raise InputError(f"hotfolder: cannot move {folder} to {target} ({e.strerror or e})") from None
+        # A later folder of the same name (a new part 7 tomorrow) is a new capture.
+        self._done.discard(folder.name)
+
+    def acquire(self) -> Iterator[Acquisition]:
+        from inspector_drivers.replay.folder import read_capture
+
+        n = 0
+        last_new = self.clock()
+        while True:
+            now = self.clock()
+            handed = False
+            for folder in self._candidates():
+                if not self._ready(folder, now):
+                    continue
+                handed = True
+                folder = self._unique(folder)
+                yield Acquisition(folder.name, lambda folder=folder: read_capture(folder))
+                # Resumed: the consumer has inspected it and written its result.
+                self._finish(folder)
+                n += 1
+                last_new = now = self.clock()
+                if self.params.count and n >= self.params.count:
+                    return
+            if not handed:
+                if self.params.idle_exit_s and now - last_new >= self.params.idle_exit_s:
+                    return
+                self.sleep(self.params.poll_s)
+
+    def close(self) -> None:
+        pass
