@@ -10,6 +10,7 @@ the methods of :class:`PluginManager`.
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -72,17 +73,41 @@ class PluginManager:
         return sorted(n for n, _ in self.pm.list_name_plugin())
 
     # -- lifecycle -----------------------------------------------------------------
+    # Lifecycle hooks observe; one that raises (a PLC off the network, a full disk) must not
+    # stop the inspection, the batch, or the other plugins: each implementation is called on
+    # its own and a failure is one warning line naming the plugin.
     def before_stage(self, context: InspectionContext, stage: StageSpec, step: str) -> None:
-        self.pm.hook.inspector_before_stage(context=context, stage=stage, step=step)
+        self._observe("inspector_before_stage", f"{context.capture.name}/{step}", context=context, stage=stage, step=step)
 
     def after_stage(self, context: InspectionContext, stage: StageSpec, step: str, seconds: float) -> None:
-        self.pm.hook.inspector_after_stage(context=context, stage=stage, step=step, seconds=seconds)
+        self._observe("inspector_after_stage", f"{context.capture.name}/{step}", context=context, stage=stage, step=step,
+                      seconds=seconds)
 
     def on_stage_error(self, context: InspectionContext, stage: StageSpec, step: str, error: BaseException) -> None:
-        self.pm.hook.inspector_on_stage_error(context=context, stage=stage, step=step, error=error)
+        self._observe("inspector_on_stage_error", f"{context.capture.name}/{step}", context=context, stage=stage,
+                      step=step, error=error)
 
     def on_result(self, result: InspectionResult, outdir: Path | None) -> None:
-        self.pm.hook.inspector_on_result(result=result, outdir=outdir)
+        self._observe("inspector_on_result", result.capture, result=result, outdir=outdir)
+
+    def _observe(self, hook: str, what: str, **kwargs: object) -> None:
+        caller = getattr(self.pm.hook, hook)
+        impls = caller.get_hookimpls()
+        if any(i.wrapper or i.hookwrapper for i in impls):  # wrappers need pluggy's own call
+            calls = [(self._name(None), lambda: caller(**kwargs))]
+        else:  # pluggy's order: last registered first
+            calls = [(self._name(i), lambda i=i: i.function(**{a: kwargs[a] for a in i.argnames})) for i in reversed(impls)]
+        for name, call in calls:
+            try:
+                call()
+            except Exception as e:  # noqa: BLE001 - reported, never raised
+                msg = " ".join(str(e).split())
+                print(f"inspector: warning: {name} failed on {what} ({hook}): {type(e).__name__}: {msg}",
+                      file=sys.stderr, flush=True)
+
+    @staticmethod
+    def _name(impl: object | None) -> str:
+        return "a plugin" if impl is None else f"plugin {getattr(impl, 'plugin_name', '?')!r}"
 
     # -- lookups used by recipes -----------------------------------------------------
     def stage(self, name: str) -> StageSpec:
