@@ -352,6 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
     from inspector import bench
 
     bench.add_parser(sub)
+    from inspector_plugins import history
+
+    history.add_parser(sub)
     from inspector_drivers import capture_cmd
 
     capture_cmd.add_parser(sub)
@@ -388,6 +391,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from inspector import bench
 
             return bench.run(args)
+        if args.command == "history":
+            from inspector_plugins import history
+
+            return history.run(args)
         if args.command == "report":
             from inspector import report
 

@@ -356,3 +356,5 @@ class InspectionResult:
     reconstruction: Reconstruction | None = None
     bcps: BcpsPoints | None = None
     rig: Rig | None = None
+    #: capture.json's keys but polarity (part_id, timestamp, extras); {} when unknown.
+    metadata: Mapping[str, Any] = field(default_factory=dict)

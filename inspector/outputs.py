@@ -60,6 +60,7 @@ def result_to_json(result: InspectionResult, *, with_points: bool) -> dict[str, 
             "pose": result.pose if result.pose is not None else None,
             "stats": dict(result.stats),
             "defects": [d.to_json() for d in result.defects],
+            "metadata": dict(result.metadata),
             "points": {
                 "bcps": BCPS_PLY if with_points and result.bcps is not None else None,
                 "reconstruction": RECON_PLY if with_points and result.reconstruction is not None else None,

@@ -117,6 +117,7 @@ def inspect_capture(
         reconstruction=ctx.reconstruction,
         bcps=ctx.bcps,
         rig=capture.rig,
+        metadata=dict(capture.metadata),
     )
     return Outcome(result, ctx)
 
@@ -129,6 +130,7 @@ def _error_result(name: str, recipe: Recipe, reason: str, timings: dict[str, flo
         error=reason,
         timings_s=timings,
         rig=capture.rig if capture is not None else None,
+        metadata=dict(capture.metadata) if capture is not None else {},
     )
 
 

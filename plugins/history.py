@@ -1,0 +1,184 @@
+"""Built-in plugin ``history``: every inspection recorded in ``OUTDIR/history.sqlite``.
+
+The traceability record of a production line: one row per inspection (a capture inspected
+twice has two rows: nothing is overwritten), with the part's id and trigger time from
+``capture.json``, the verdict, the deviation summary, the defects and the timings. It is an
+``inspector_on_result`` hook like an integrator's PLC or MES publisher, registered through
+the same entry-point group; ``inspector history OUTDIR`` reads it.
+
+The database is SQLite (WAL journal, so a reader never blocks the runner); the schema is
+:data:`SCHEMA`. A history that cannot be written (read-only folder, a corrupt file) costs
+only the history row: the result folder is already written, and the runner says so in one
+line.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from inspector import hookimpl
+from inspector.errors import InputError
+from inspector.model import InspectionResult
+
+__all__ = ["HISTORY_FILE", "SCHEMA", "record", "read_history"]
+
+#: The history database, in the run's OUTDIR (beside the result folders).
+HISTORY_FILE = "history.sqlite"
+
+#: Version 1. ``inspected_at`` is UTC ISO-8601; deviations in mm; ``metadata`` is capture.json
+#: (minus polarity) as JSON.
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS inspections (
+    id INTEGER PRIMARY KEY,
+    inspected_at TEXT NOT NULL,
+    capture TEXT NOT NULL,
+    part_id TEXT,
+    triggered_at TEXT,
+    recipe TEXT NOT NULL,
+    verdict TEXT NOT NULL CHECK (verdict IN ('pass', 'fail', 'error')),
+    error TEXT,
+    n_points INTEGER,
+    deviation_mean_mm REAL,
+    deviation_min_mm REAL,
+    deviation_max_mm REAL,
+    n_defects INTEGER NOT NULL,
+    worst_mm REAL,
+    total_s REAL,
+    result_dir TEXT,
+    metadata TEXT
+);
+CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture);
+CREATE TABLE IF NOT EXISTS defects (
+    inspection_id INTEGER NOT NULL REFERENCES inspections (id),
+    kind TEXT NOT NULL,
+    n_points INTEGER NOT NULL,
+    worst_mm REAL NOT NULL,
+    x REAL, y REAL, z REAL,
+    region TEXT
+);
+PRAGMA user_version = 1;
+"""
+
+
+def _connect(path: Path) -> sqlite3.Connection:
+    con = sqlite3.connect(str(path), timeout=10.0)
+    con.execute("PRAGMA journal_mode=WAL")
+    return con
+
+
+def record(result: InspectionResult, outdir: Path, *, now: datetime | None = None) -> int:
+    """Append one inspection to ``outdir/history.sqlite``; returns its row id.
+
+    ``outdir`` is the run's result folder (the parent of the capture's own folder).
+    """
+    meta = dict(result.metadata or {})
+    dev = result.stats.get("deviation_mm", {}) if result.stats else {}
+    worst = max((d.worst_mm for d in result.defects), key=abs, default=None)
+    row = (
+        (now or datetime.now(timezone.utc)).isoformat(timespec="milliseconds"),
+        result.capture,
+        None if meta.get("part_id") is None else str(meta["part_id"]),
+        None if meta.get("timestamp") is None else str(meta["timestamp"]),
+        result.recipe,
+        result.verdict,
+        result.error,
+        result.stats.get("n_points") if result.stats else None,
+        dev.get("mean"),
+        dev.get("min"),
+        dev.get("max"),
+        len(result.defects),
+        worst,
+        result.timings_s.get("total"),
+        result.capture,
+        json.dumps(meta, default=str, sort_keys=True),
+    )
+    con = _connect(outdir / HISTORY_FILE)
+    try:
+        con.executescript(SCHEMA)
+        cur = con.execute(
+            "INSERT INTO inspections (inspected_at, capture, part_id, triggered_at, recipe, verdict, error, n_points,"
+            " deviation_mean_mm, deviation_min_mm, deviation_max_mm, n_defects, worst_mm, total_s, result_dir, metadata)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            row,
+        )
+        rid = int(cur.lastrowid)
+        con.executemany(
+            "INSERT INTO defects (inspection_id, kind, n_points, worst_mm, x, y, z, region) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            [(rid, d.kind, d.n_points, d.worst_mm, *d.position, d.region) for d in result.defects],
+        )
+        con.commit()
+    finally:
+        con.close()
+    return rid
+
+
+def read_history(outdir: Path, *, last: int | None = None) -> list[dict[str, Any]]:
+    """The recorded inspections of ``outdir``, oldest first (the ``last`` ones only).
+
+    Raises InputError naming the file when there is no history or it cannot be read.
+    """
+    path = Path(outdir) / HISTORY_FILE
+    if not path.is_file():
+        raise InputError(f"{path}: no history (inspector run writes it beside the result folders)")
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+        try:
+            con.row_factory = sqlite3.Row
+            q = "SELECT * FROM inspections ORDER BY id"
+            if last is not None:
+                q = f"SELECT * FROM (SELECT * FROM inspections ORDER BY id DESC LIMIT {int(last)}) ORDER BY id"
+            return [dict(r) for r in con.execute(q)]
+        finally:
+            con.close()
+    except sqlite3.Error as e:
+        raise InputError(f"{path}: cannot be read ({e})") from None
+
+
+@hookimpl
+def inspector_on_result(result: InspectionResult, outdir: Path | None) -> None:
+    if outdir is not None:
+        record(result, Path(outdir).parent)
+
+
+# --------------------------------------------------------------------------- inspector history
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("history", help="list the inspections recorded in OUTDIR/history.sqlite, and the yield")
+    p.add_argument("outdir", metavar="OUTDIR", help="an inspector run --out folder")
+    p.add_argument("--last", type=int, metavar="N", help="only the last N inspections")
+    p.add_argument("--json", action="store_true", help="the rows as JSON")
+
+
+def _fmt(x: Any, spec: str) -> str:
+    return "-" if x is None else format(x, spec)
+
+
+def run(args) -> int:
+    import sys
+
+    if args.last is not None and args.last < 1:
+        print(f"inspector: error: --last: expected a number >= 1, got {args.last}", file=sys.stderr)
+        return 2
+    try:
+        rows = read_history(Path(args.outdir), last=args.last)
+    except InputError as e:
+        print(f"inspector: error: {e}", file=sys.stderr)
+        return 3
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    print(f"{'inspected at (UTC)':24s} {'capture':24s} {'part id':14s} {'verdict':7s} {'defects':>7s} {'worst mm':>9s} {'s':>6s}")
+    for r in rows:
+        print(f"{r['inspected_at'][:23]:24s} {r['capture'][:24]:24s} {(r['part_id'] or '-')[:14]:14s} "
+              f"{r['verdict'].upper():7s} {r['n_defects']:7d} {_fmt(r['worst_mm'], '+9.3f'):>9s} {_fmt(r['total_s'], '6.2f'):>6s}")
+    n = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "fail", "error")}
+    judged = n["pass"] + n["fail"]
+    yld = f"yield {n['pass'] / judged:.1%} of the parts judged" if judged else "no part judged"
+    span = f", {rows[0]['inspected_at'][:19]} to {rows[-1]['inspected_at'][:19]}" if rows else ""
+    print(f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}{span}")
+    return 0

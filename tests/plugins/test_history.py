@@ -1,0 +1,76 @@
+"""The built-in ``history`` plugin: one SQLite row per inspection, read by ``inspector history``."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sqlite3
+from pathlib import Path
+
+import pytest
+
+from inspector.cli import main
+
+DEFAULT = str(Path(__file__).resolve().parents[2] / "recipes" / "default.toml")
+
+
+def _run(captures, out: Path) -> int:
+    return main(["run", DEFAULT, "--capture", *map(str, captures), "--out", str(out), "--reference", "builtin:cube30", "-q"])
+
+
+@pytest.fixture
+def two_parts(tmp_path, small_capture):
+    a = shutil.copytree(small_capture, tmp_path / "c" / "part-a")
+    b = shutil.copytree(small_capture, tmp_path / "c" / "part-b")
+    meta = json.loads((a / "capture.json").read_text()) if (a / "capture.json").exists() else {}
+    (a / "capture.json").write_text(json.dumps({**meta, "part_id": "A-0001", "timestamp": "2026-12-01T08:00:00+00:00"}))
+    (b / "rig.json").write_text("{ broken")  # an error result is recorded too
+    return a, b
+
+
+def test_every_inspection_is_a_row_and_a_rerun_adds_rows(tmp_path, two_parts):
+    out = tmp_path / "out"
+    _run(two_parts, out)
+    _run(two_parts[:1], out)  # part-a again: its result folder is rewritten, the history is not
+    con = sqlite3.connect(out / "history.sqlite")
+    rows = con.execute("SELECT capture, part_id, triggered_at, verdict, error, n_points, n_defects, result_dir"
+                       " FROM inspections ORDER BY id").fetchall()
+    res = json.loads((out / "part-a" / "result.json").read_text())
+    a = ("part-a", "A-0001", "2026-12-01T08:00:00+00:00", res["verdict"], None, res["stats"]["n_points"],
+         len(res["defects"]), "part-a")
+    assert rows[0] == a and rows[2] == a
+    assert rows[1][:4] == ("part-b", None, None, "error") and rows[1][4].startswith("rig.json: not valid JSON")
+    assert con.execute("PRAGMA user_version").fetchone() == (1,)
+    n_def = con.execute("SELECT COUNT(*) FROM defects").fetchone()[0]
+    assert n_def == 2 * len(res["defects"])
+
+
+def test_inspector_history_lists_the_runs_and_the_yield(tmp_path, two_parts, capsys):
+    out = tmp_path / "out"
+    _run(two_parts, out)
+    capsys.readouterr()
+    assert main(["history", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "part-a" in text and "A-0001" in text and "part-b" in text and "ERROR" in text
+    assert text.strip().splitlines()[-1].startswith("2 inspections: ")
+    assert main(["history", str(out), "--json", "--last", "1"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["capture"] for r in rows] == ["part-b"]
+
+
+def test_no_history_is_one_line(tmp_path, capsys):
+    assert main(["history", str(tmp_path)]) == 3
+    assert capsys.readouterr().err.strip() == (
+        f"inspector: error: {tmp_path / 'history.sqlite'}: no history (inspector run writes it beside the result folders)")
+
+
+def test_a_history_that_cannot_be_written_costs_only_its_row(tmp_path, two_parts, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "history.sqlite").write_bytes(b"this is not a database" * 100)
+    code = _run(two_parts[:1], out)
+    assert code in (0, 1)  # the part was inspected and its result written
+    assert json.loads((out / "part-a" / "result.json").read_text())["verdict"] in ("pass", "fail")
+    err = capsys.readouterr().err
+    assert "inspector: warning: plugin 'history' failed on part-a (inspector_on_result): DatabaseError: " in err
+    assert "Traceback" not in err
