@@ -68,29 +68,19 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
 
     pm, recipe, ref = _load(recipe_path, reference)
     if watch is not None:
-        inbox = Path(watch["folder"]).resolve()
-        if not inbox.is_dir():
-            raise RecipeError(f"--watch {watch['folder']}: not a folder")
-        res = Path(out).resolve()
-        if res == inbox or inbox in res.parents:
-            raise RecipeError(f"--out {out}: inside the inbox --watch {watch['folder']} (its result folders would be taken for captures)")
-    outdir = _result_folder(out)
-    if watch is not None:
         from inspector_drivers.replay.hotfolder import HotFolderDriver, HotFolderParams
 
-        driver = HotFolderDriver(HotFolderParams(**watch))
-        total = watch["count"] or None
+        if not Path(watch["folder"]).is_dir():
+            raise RecipeError(f"--watch {watch['folder']}: not a folder")
+        driver, total = HotFolderDriver(HotFolderParams(**watch)), watch["count"] or None
     elif captures:
         from inspector_drivers.replay import ReplayDriver, ReplayParams, expand
 
         folders = _distinct_names(expand(list(captures)))
-        driver = ReplayDriver(ReplayParams(tuple(str(f) for f in folders)))
-        total = len(folders)
+        driver, total = ReplayDriver(ReplayParams(tuple(str(f) for f in folders))), len(folders)
     else:
         driver = recipe.driver.spec.open(recipe.driver.params)
         total = getattr(recipe.driver.params, "count", None)
-    if hasattr(driver, "taken"):  # a hot folder: a reused capture name must not overwrite a result
-        driver.taken = lambda name: (outdir / name).exists()
     # Only the verdicts are kept: a live driver or a long batch must not hold every
     # result's points in memory (5 MB a capture).
     verdicts: list[str] = []
@@ -104,6 +94,12 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
             print(f"[{counter['i']}{of}] {line}", flush=True)
 
     try:
+        inbox = getattr(driver, "inbox", None)  # a hot folder
+        if inbox is not None and _inside(Path(out), inbox):
+            raise RecipeError(f"--out {out}: inside the inbox {inbox} (its result folders would be taken for captures)")
+        outdir = _result_folder(out)
+        if hasattr(driver, "taken"):  # a reused capture name must not overwrite a result
+            driver.taken = lambda name: (outdir / name).exists()
         for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
             verdicts.append(outcome.result.verdict)
             for w in outcome.result.stats.get("warnings", ()):
@@ -122,6 +118,12 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
         n = {v: verdicts.count(v) for v in ("pass", "fail", "error")}
         print(f"{len(verdicts)} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {outdir.resolve()}")
     return status
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or lies under it (resolved)."""
+    p, f = path.resolve(), Path(folder).resolve()
+    return p == f or f in p.parents
 
 
 def _result_folder(out: str) -> Path:

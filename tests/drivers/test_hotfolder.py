@@ -166,7 +166,7 @@ def test_inspector_run_watch_inspects_what_another_program_drops_in(tmp_path, sm
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--watch", "{inbox}", "--out", "{inbox}/results"], "--out {inbox}/results: inside the inbox --watch {inbox} (its result folders would be taken for captures)"),
+    (["--watch", "{inbox}", "--out", "{inbox}/results"], "--out {inbox}/results: inside the inbox {inbox} (its result folders would be taken for captures)"),
     (["--watch", "{tmp}/nope", "--out", "{tmp}/o"], "--watch {tmp}/nope: not a folder"),
     (["--capture", "{inbox}", "--count", "2", "--out", "{tmp}/o"], "--count: only with --watch"),
     (["--watch", "{inbox}", "--idle-exit", "0", "--out", "{tmp}/o"], "--idle-exit: expected seconds > 0, got 0.0"),
