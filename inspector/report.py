@@ -64,6 +64,8 @@ def render_report(folder: Path, out: Path | None = None) -> Path:
         f" tolerance [{tol['lower']:+.2f}, {tol['upper']:+.2f}] mm; {len(defects)} defect(s)",
         fontsize=11,
     )
+    for k, w in enumerate(res["stats"].get("warnings", [])):  # e.g. a tolerance the rig cannot resolve
+        fig.text(0.5, 0.02 + 0.035 * k, f"warning: {w}", ha="center", va="bottom", fontsize=9, color="#b00000")
     fig.savefig(out)
     plt.close(fig)
     return out

@@ -395,3 +395,18 @@ def test_a_capability_warning_is_printed_once_per_run_and_kept_in_each_result(tm
     for i in range(2):
         res = json.loads((tmp_path / "o" / f"part{i}" / "result.json").read_text())
         assert res["stats"]["warnings"] == [warnings[0].split(": ", 3)[3]]
+
+
+def test_report_shows_the_result_warnings_under_the_picture(tmp_path):
+    import cv2
+
+    def red_in_bottom_band(folder: Path) -> int:
+        assert run_cli("report", str(folder)) == 0
+        img = cv2.imread(str(folder / "deviation.png"))  # BGR
+        band = img[int(img.shape[0] * 0.9):].astype(int)
+        return int(((band[..., 2] > 140) & (band[..., 1] < 80) & (band[..., 0] < 80)).sum())
+
+    plain = _result_folder(tmp_path / "plain")
+    warned = _result_folder(tmp_path / "warned", stats={"warnings": ["tolerance [-0.1, +0.1] mm is 0.40 px at this rig's "
+                                                                      "0.25 mm pixel footprint"]})
+    assert red_in_bottom_band(plain) == 0 and red_in_bottom_band(warned) > 200
