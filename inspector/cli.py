@@ -262,6 +262,7 @@ def _demo(args: argparse.Namespace) -> int:
     if got != expected:
         _err(f"demo verdicts {got}, expected {expected}")
         return EXIT_ERROR
+    print(f"\nhistory: {out / 'results' / 'history.sqlite'} (inspector history {out / 'results'})")
     print("\nDemo OK: the good cube passes, the notched cube fails with its defect located.")
     return EXIT_OK if status in (EXIT_OK, EXIT_FAIL) else status
 
