@@ -15,7 +15,9 @@ Two kinds of hooks:
   its stages and drivers to the registry it is given;
 * **lifecycle hooks** are called by the runner around every stage and for every result,
   so an integrator can publish results (PLC, MES, database) without touching the core.
-  They must not change what they receive.
+  They must not change what they receive. Each implementation is called on its own: one
+  that raises is a one-line warning naming its plugin, and the inspection, the batch and
+  the other plugins go on (the built-in ``history`` plugin is such an observer).
 """
 
 from __future__ import annotations
