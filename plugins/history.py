@@ -47,6 +47,8 @@ CREATE TABLE IF NOT EXISTS inspections (
     deviation_max_mm REAL,
     n_defects INTEGER NOT NULL,
     worst_mm REAL,
+    tolerance_lower_mm REAL,
+    tolerance_upper_mm REAL,
     total_s REAL,
     result_dir TEXT,
     metadata TEXT
@@ -78,6 +80,7 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
     meta = dict(result.metadata or {})
     dev = result.stats.get("deviation_mm", {}) if result.stats else {}
     worst = max((d.worst_mm for d in result.defects), key=abs, default=None)
+    tol = result.stats.get("tolerance_mm", {}) if result.stats else {}
     row = (
         (now or datetime.now(timezone.utc)).isoformat(timespec="milliseconds"),
         result.capture,
@@ -92,6 +95,8 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
         dev.get("max"),
         len(result.defects),
         worst,
+        tol.get("lower"),
+        tol.get("upper"),
         result.timings_s.get("total"),
         result.capture,
         json.dumps(meta, default=str, sort_keys=True),
@@ -101,8 +106,9 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
         con.executescript(SCHEMA)
         cur = con.execute(
             "INSERT INTO inspections (inspected_at, capture, part_id, triggered_at, recipe, verdict, error, n_points,"
-            " deviation_mean_mm, deviation_min_mm, deviation_max_mm, n_defects, worst_mm, total_s, result_dir, metadata)"
-            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            " deviation_mean_mm, deviation_min_mm, deviation_max_mm, n_defects, worst_mm, tolerance_lower_mm,"
+            " tolerance_upper_mm, total_s, result_dir, metadata)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             row,
         )
         rid = int(cur.lastrowid)
@@ -152,6 +158,49 @@ def add_parser(subparsers) -> None:
     p.add_argument("outdir", metavar="OUTDIR", help="an inspector run --out folder")
     p.add_argument("--last", type=int, metavar="N", help="only the last N inspections")
     p.add_argument("--json", action="store_true", help="the rows as JSON")
+    p.add_argument("--plot", metavar="PNG", help="also draw the trend: each part's deviation range against its tolerance")
+
+
+def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
+    """A trend picture of ``rows`` (:func:`read_history`): per inspection, in order, the range
+    of its BCPS deviations (mm) as a bar, green for a pass and red for a fail, its worst
+    defect as a dot, errors as grey marks on the zero line, and the tolerance band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(12, 4.5), dpi=110)
+    colour = {"pass": "#2e8b2e", "fail": "#c01010", "error": "#888888"}
+    for k, r in enumerate(rows):
+        c = colour[r["verdict"]]
+        if r["verdict"] == "error" or r["deviation_min_mm"] is None:
+            ax.plot([k], [0.0], marker="x", color=c, ms=7, mew=2)
+            continue
+        ax.vlines(k, r["deviation_min_mm"], r["deviation_max_mm"], color=c, lw=3)
+        if r["worst_mm"] is not None:
+            ax.plot([k], [r["worst_mm"]], "o", color=c, ms=5)
+    nan = float("nan")  # an error row has no tolerance: a gap in the band
+    lo = [nan if r["tolerance_lower_mm"] is None else r["tolerance_lower_mm"] for r in rows]
+    hi = [nan if r["tolerance_upper_mm"] is None else r["tolerance_upper_mm"] for r in rows]
+    if any(v == v for v in lo + hi):
+        x = list(range(len(rows)))
+        ax.step(x, lo, where="mid", color="k", ls="--", lw=1, label="tolerance")
+        ax.step(x, hi, where="mid", color="k", ls="--", lw=1)
+        ax.legend(loc="upper right", fontsize=8)
+    ax.axhline(0.0, color="#cccccc", lw=0.8, zorder=0)
+    ax.set_xlabel("inspection (oldest first)")
+    ax.set_ylabel("BCPS deviation, mm (negative: missing)")
+    n = {v: sum(r["verdict"] == v for r in rows) for v in colour}
+    judged = n["pass"] + n["fail"]
+    yld = f"yield {n['pass'] / judged:.1%}" if judged else "no part judged"
+    ax.set_title(f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}", fontsize=11)
+    if len(rows) <= 30:
+        ax.set_xticks(range(len(rows)), [r["capture"][:14] for r in rows], rotation=60, ha="right", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out)
+    plt.close(fig)
+    return out
 
 
 def _fmt(x: Any, spec: str) -> str:
@@ -169,6 +218,12 @@ def run(args) -> int:
     except InputError as e:
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
+    if args.plot:
+        try:
+            plot_history(rows, Path(args.plot))
+        except OSError as e:
+            print(f"inspector: error: {args.plot}: cannot write ({e.strerror or e})", file=sys.stderr)
+            return 3
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
@@ -181,4 +236,6 @@ def run(args) -> int:
     yld = f"yield {n['pass'] / judged:.1%} of the parts judged" if judged else "no part judged"
     span = f", {rows[0]['inspected_at'][:19]} to {rows[-1]['inspected_at'][:19]}" if rows else ""
     print(f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}{span}")
+    if args.plot:
+        print(f"wrote {args.plot}")
     return 0

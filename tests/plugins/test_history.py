@@ -41,6 +41,8 @@ def test_every_inspection_is_a_row_and_a_rerun_adds_rows(tmp_path, two_parts):
     assert rows[0] == a and rows[2] == a
     assert rows[1][:4] == ("part-b", None, None, "error") and rows[1][4].startswith("rig.json: not valid JSON")
     assert con.execute("PRAGMA user_version").fetchone() == (1,)
+    tol = con.execute("SELECT tolerance_lower_mm, tolerance_upper_mm FROM inspections ORDER BY id").fetchall()
+    assert tol == [(-0.1, 0.1), (None, None), (-0.1, 0.1)]  # the recipe's band; none for an error
     n_def = con.execute("SELECT COUNT(*) FROM defects").fetchone()[0]
     assert n_def == 2 * len(res["defects"])
 
@@ -74,3 +76,22 @@ def test_a_history_that_cannot_be_written_costs_only_its_row(tmp_path, two_parts
     err = capsys.readouterr().err
     assert "inspector: warning: plugin 'history' failed on part-a (inspector_on_result): DatabaseError: " in err
     assert "Traceback" not in err
+
+
+def test_the_trend_picture_shows_each_part_in_its_verdict_colour(tmp_path, two_parts, capsys):
+    import cv2
+    import numpy as np
+
+    out = tmp_path / "out"
+    _run(two_parts, out)
+    png = tmp_path / "trend.png"
+    assert main(["history", str(out), "--plot", str(png)]) == 0
+    assert capsys.readouterr().out.strip().endswith(f"wrote {png}")
+    img = cv2.imread(str(png)).astype(int)  # BGR
+    verdict = json.loads((out / "part-a" / "result.json").read_text())["verdict"]
+    b, g, r = img[..., 0], img[..., 1], img[..., 2]
+    green = (g > 110) & (r < 80) & (b < 80)
+    red = (r > 160) & (g < 60) & (b < 60)
+    grey = (abs(r - 136) < 12) & (abs(g - 136) < 12) & (abs(b - 136) < 12)  # the error's cross
+    assert (red if verdict == "fail" else green).sum() > 50 and (green if verdict == "fail" else red).sum() == 0
+    assert grey.sum() > 10
