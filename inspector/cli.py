@@ -100,6 +100,8 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
         outdir = _result_folder(out)
         if hasattr(driver, "taken"):  # a reused capture name must not overwrite a result
             driver.taken = lambda name: (outdir / name).exists()
+        if inbox is not None and not quiet:
+            print(f"watching {inbox} for capture folders (Ctrl-C to stop); results in {outdir}", flush=True)
         for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
             verdicts.append(outcome.result.verdict)
             for w in outcome.result.stats.get("warnings", ()):

@@ -54,6 +54,7 @@ CREATE TABLE IF NOT EXISTS inspections (
     metadata TEXT
 );
 CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture);
+CREATE INDEX IF NOT EXISTS inspections_part ON inspections (part_id);
 CREATE TABLE IF NOT EXISTS defects (
     inspection_id INTEGER NOT NULL REFERENCES inspections (id),
     kind TEXT NOT NULL,

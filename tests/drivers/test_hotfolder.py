@@ -162,7 +162,9 @@ def test_inspector_run_watch_inspects_what_another_program_drops_in(tmp_path, sm
         res = json.loads((out / name / "result.json").read_text())
         assert res["verdict"] in ("pass", "fail"), res["error"]
         assert (inbox / DONE_DIR / name / "rig.json").is_file()
-    assert "2 inspected" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert text.startswith(f"watching {inbox} for capture folders (Ctrl-C to stop); results in {out}\n")
+    assert "2 inspected" in text
 
 
 @pytest.mark.parametrize("args, message", [
