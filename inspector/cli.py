@@ -102,17 +102,28 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
             driver.taken = lambda name: (outdir / name).exists()
         if inbox is not None and not quiet:
             print(f"watching {inbox} for capture folders (Ctrl-C to stop); results in {outdir}", flush=True)
-        for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
-            verdicts.append(outcome.result.verdict)
-            for w in outcome.result.stats.get("warnings", ()):
-                if w not in warned:  # once per run, not once per part
-                    warned.add(w)
-                    print(f"inspector: warning: {outcome.result.capture}: {w}", file=sys.stderr, flush=True)
-            if quiet and outcome.result.verdict == "error":  # no progress lines, but no silent error
-                _err(f"{outcome.result.capture}: {outcome.result.error}")
-            del outcome
+        try:
+            for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
+                verdicts.append(outcome.result.verdict)
+                for w in outcome.result.stats.get("warnings", ()):
+                    if w not in warned:  # once per run, not once per part
+                        warned.add(w)
+                        print(f"inspector: warning: {outcome.result.capture}: {w}", file=sys.stderr, flush=True)
+                if quiet and outcome.result.verdict == "error":  # no progress lines, but no silent error
+                    _err(f"{outcome.result.capture}: {outcome.result.error}")
+                del outcome
+        except KeyboardInterrupt:
+            if inbox is None:
+                raise
+            # Ctrl-C is how a watch ends: a capture being inspected stays in the inbox.
+            if not quiet:
+                print("watch stopped", flush=True)
     finally:
         driver.close()
+    if not verdicts and inbox is not None:
+        if not quiet:
+            print(f"no capture arrived in {inbox}")
+        return EXIT_OK
     if not verdicts:
         raise RecipeError("no capture to inspect")
     status = exit_status(verdicts)

@@ -195,3 +195,41 @@ def test_a_recipe_can_use_the_hotfolder_driver(tmp_path, small_capture):
     recipe.write_text(text)
     assert main(["run", str(recipe), "--out", str(tmp_path / "o"), "--reference", "builtin:cube30", "-q"]) in (0, 1)
     assert (tmp_path / "o" / "part9" / "result.json").is_file() and (inbox / DONE_DIR / "part9").is_dir()
+
+
+def test_ctrl_c_ends_a_watch_like_its_other_ends(tmp_path, small_capture, monkeypatch, capsys):
+    # The watch is stopped while it waits (KeyboardInterrupt from its sleep): the summary and
+    # the exit status of what was inspected, not an error.
+    import inspector_drivers.replay.hotfolder as hf
+    from inspector.cli import main
+
+    inbox, out = tmp_path / "inbox", tmp_path / "out"
+    inbox.mkdir()
+    _drop(small_capture, inbox, "only")
+    naps = []
+
+    def sleep(s):
+        naps.append(s)
+        if not (inbox / "only").exists():  # inspected and filed: the operator presses Ctrl-C
+            raise KeyboardInterrupt
+
+    class Stopping(hf.HotFolderDriver):
+        def __post_init__(self):
+            super().__post_init__()
+            self.sleep = sleep
+
+    monkeypatch.setattr(hf, "HotFolderDriver", Stopping)
+    code = main(["run", DEFAULT, "--watch", str(inbox), "--out", str(out), "--reference", "builtin:cube30"])
+    text = capsys.readouterr().out
+    assert code == (0 if json.loads((out / "only" / "result.json").read_text())["verdict"] == "pass" else 1)
+    assert "watch stopped\n1 inspected: " in text
+
+
+def test_a_watch_that_sees_nothing_ends_quietly(tmp_path, capsys):
+    from inspector.cli import main
+
+    inbox = tmp_path / "inbox"
+    inbox.mkdir()
+    code = main(["run", DEFAULT, "--watch", str(inbox), "--out", str(tmp_path / "o"), "--reference", "builtin:cube30",
+                 "--idle-exit", "0.3"])
+    assert code == 0 and capsys.readouterr().out.strip().endswith(f"no capture arrived in {inbox}")
