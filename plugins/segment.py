@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Literal
 
@@ -11,6 +10,7 @@ import numpy as np
 from inspector import hookimpl
 from inspector.errors import StageError
 from inspector.kernels import silhouette as sk
+from inspector.kernels.threads import map_threads
 from inspector.model import Silhouette
 from inspector.params import param
 from inspector.pipeline import InspectionContext
@@ -80,7 +80,8 @@ def _hard_edged(above: np.ndarray, partial: int) -> bool:
 INVERTED_BORDER_FRACTION = 0.75
 
 
-def _polarity_check(camera: str, mask: np.ndarray, polarity: str, source: str) -> None:
+def _polarity_check(camera: str, mask: np.ndarray, polarity: str, source: str) -> float:
+    """The share of the image border the object covers; StageError when it is the background."""
     share = sk.border_fraction(mask)
     if share > INVERTED_BORDER_FRACTION:
         other = "bright-object" if polarity == "dark-object" else "dark-object"
@@ -88,6 +89,7 @@ def _polarity_check(camera: str, mask: np.ndarray, polarity: str, source: str) -
             f"camera {camera}: the object covers {share:.0%} of the image border, so it is the background: "
             f"the polarity looks inverted: {polarity}, from {source}; the image looks {other}"
         )
+    return share
 
 
 def _contrast_check(camera: str, bg_level: float, fg_level: float) -> None:
@@ -188,10 +190,9 @@ def segment_image(
     if comps.box is None:
         raise StageError(f"camera {camera}: empty silhouette (no object region of {p.min_area_px} px or more)")
     mask = comps.mask
-    _polarity_check(camera, mask, polarity, polarity_source)
+    border = _polarity_check(camera, mask, polarity, polarity_source) > 0.0
     if comps.removed is not None:
         soft[comps.removed] = 0.0  # coverage >= 0.5 only on the kept components
-    border = sk.touches_border(mask)
     y0, y1, x0, x1 = sk.grow_box(comps.box, mask.shape, CROP_MARGIN)
     crop = dict(origin=(x0, y0), image_shape=mask.shape)
     m = mask[y0:y1, x0:x1]
@@ -223,10 +224,7 @@ def run_segment(ctx: InspectionContext, p: SegmentParams) -> InspectionContext:
 
     # OpenCV, the compiled contouring and numpy on whole images release the GIL: cameras
     # in parallel threads.
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(max_workers=min(len(cap.rig), os.cpu_count() or 1) or 1) as pool:
-        sils = list(pool.map(one, cap.rig.cameras))
+    sils = map_threads(one, cap.rig.cameras)
     return ctx.evolve(silhouettes=tuple(sils))
 
 

@@ -1266,11 +1266,9 @@ def carve(
 
     if backend == "numba" and len(cameras) > 1:
         # the distance transforms release the GIL: one thread per core
-        import os
-        from concurrent.futures import ThreadPoolExecutor
+        from inspector.kernels.threads import map_threads
 
-        with ThreadPoolExecutor(max_workers=min(len(cameras), os.cpu_count() or 1)) as ex:
-            sdts = list(ex.map(sdt_job, range(len(masks))))
+        sdts = map_threads(sdt_job, range(len(masks)))
     else:
         sdts = [sdt_job(i) for i in range(len(masks))]
     views = [_prepare(c, sd, o, r[:2]) for c, sd, o, r in zip(cameras, sdts, ob, rects)]

@@ -92,8 +92,7 @@ def _with_depth(inside: np.ndarray, out: np.ndarray) -> None:
 
 def stack_views(views: Sequence) -> CameraStack:
     """Pack :class:`inspector.kernels.bcps.View` objects (maps as :func:`_with_depth`)."""
-    import os
-    from concurrent.futures import ThreadPoolExecutor
+    from inspector.kernels.threads import map_threads
 
     C = len(views)
     H = max(v.inside.shape[0] for v in views)
@@ -110,8 +109,7 @@ def stack_views(views: Sequence) -> CameraStack:
         sizes[i] = (w, h)
 
     # OpenCV and numpy release the GIL on these arrays: cameras in parallel
-    with ThreadPoolExecutor(max_workers=min(C, os.cpu_count() or 1) or 1) as pool:
-        list(pool.map(one, range(C)))
+    map_threads(one, range(C))
     return CameraStack(
         np.stack([v.camera.K for v in views]).astype(np.float64),
         np.stack([v.camera.R for v in views]).astype(np.float64),
