@@ -124,6 +124,11 @@ def _lipschitz_px_per_mm(views: Sequence[View], bounds: np.ndarray) -> float:
     return worst
 
 
+def _cost(sd, viol, tol, weight):
+    """Selection cost: signed distance plus ``weight`` mm per pixel of violation beyond ``tol``."""
+    return sd + weight * np.maximum(viol - tol, 0.0)
+
+
 def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight, centre=None):
     """Hull violation (px), signed distance and selection cost on a (R, K) grid of ray
     parameters ``t`` (entries where ``valid`` is False are skipped: violation inf).
@@ -147,11 +152,11 @@ def _evaluate(origin, dirs, t, valid, hull, sd_fn, eps, tol, weight, centre=None
     keep = v <= eps
     if centre is not None:
         t_c, s_c, c_c = (np.repeat(a, K)[flat] for a in centre)
-        bound = s_c - np.abs(t.ravel()[flat] - t_c) + weight * np.maximum(v - tol, 0.0)
+        bound = _cost(s_c - np.abs(t.ravel()[flat] - t_c), v, tol, weight)
         keep &= ~(bound >= c_c)
     if keep.any():
         sd[flat[keep]] = sd_fn(X[keep])
-    cost = sd + weight * np.maximum(viol - tol, 0.0)
+    cost = _cost(sd, viol, tol, weight)
     return viol.reshape(R, K), sd.reshape(R, K), cost.reshape(R, K)
 
 
@@ -229,7 +234,7 @@ def _refine(origin, d, tbest, vbest, sbest, hull, sd_fn, step_mm, levels, offset
     for _ in range(levels):
         tt = tbest[:, None] + h * offsets[None, :]
         eps = max(0.5 * lip * h / half, accept_px)
-        cbest = sbest + weight * np.maximum(vbest - tol, 0.0)
+        cbest = _cost(sbest, vbest, tol, weight)
         v2, s2, c2 = _evaluate(origin, d, tt, every, hull, sd_fn, eps, tol, weight, centre=(tbest, sbest, cbest))
         has = np.isfinite(c2).any(axis=1)
         k2 = np.where(has, np.argmin(c2, axis=1), np.argmin(v2, axis=1))
@@ -408,9 +413,7 @@ def select_on_rays(
         if two.any():
             t2, v2, s2 = _refine(origin, d[two], qt[two], qv[two], qs[two], hull, sd_fn, step_mm, refine_levels,
                                  offsets, half, lip, accept_px, tolerance_px, weight)
-            c1 = sbest[two] + weight * np.maximum(vbest[two] - tolerance_px, 0.0)
-            c2 = s2 + weight * np.maximum(v2 - tolerance_px, 0.0)
-            win = c2 < c1
+            win = _cost(s2, v2, tolerance_px, weight) < _cost(sbest[two], vbest[two], tolerance_px, weight)
             better = np.flatnonzero(two)[win]
             tbest[better], vbest[better], sbest[better] = t2[win], v2[win], s2[win]
         ok = (vbest <= accept_px) & np.isfinite(sbest)

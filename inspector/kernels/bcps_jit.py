@@ -170,10 +170,8 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
         fv = bv
         fs = bs
         fc = np.inf
-        for seed in range(2):
+        for seed in range(2 if two else 1):
             if seed == 1:
-                if not two:
-                    break
                 bt = qt
                 bv = qv
                 bs = qs
