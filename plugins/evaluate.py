@@ -109,14 +109,14 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
         "bcps_method": sel.method,
         "segment_mm": {"median": float(np.median(sel.segment_mm)) if n else 0.0},
     }
-    if len(ctx.capture.rig):
-        fp = ctx.capture.rig.footprint_mm()
+    fp = ctx.capture.rig.footprint_mm() if len(ctx.capture.rig) else None
+    if fp is not None:
         stats["footprint_mm"] = fp
         warning = capability_warning(tol, fp)
         if warning is not None:
             stats["warnings"] = [warning]
-    if n and len(ctx.capture.rig):
-        conf = confidence(sel.segment_mm, ctx.capture.rig.footprint_mm())
+    if n and fp is not None:
+        conf = confidence(sel.segment_mm, fp)
         stats["confidence"] = {
             "mean": float(conf.mean()),
             "p10": float(np.percentile(conf, 10)),

@@ -172,22 +172,19 @@ class HotFolderDriver:
 
     def _finish(self, folder: Path) -> None:
         """The runner has written this capture's result: file the folder away."""
-        self._done.add(folder.name)
         self._seen.pop(folder.name, None)
-        if self.params.after != "move" or not folder.exists():
+        if self.params.after != "move":
+            self._done.add(folder.name)  # kept in place: inspected once per run
+            return
+        if not folder.exists():
             return
         done = self.inbox / DONE_DIR
         done.mkdir(exist_ok=True)
-        target, k = done / folder.name, 1
-        while target.exists():  # only if done/ changed meanwhile: _unique chose a free name
-            k += 1
-            target = done / f"{folder.name}-{k}"
+        target = done / folder.name  # free: _unique chose the name
         try:
             folder.rename(target)
         except OSError as e:
             raise InputError(f"hotfolder: cannot move {folder} to {target} ({e.strerror or e})") from None
-        # A later folder of the same name (a new part 7 tomorrow) is a new capture.
-        self._done.discard(folder.name)
 
     def acquire(self) -> Iterator[Acquisition]:
         from inspector_drivers.replay.folder import read_capture

@@ -459,7 +459,7 @@ def border_fraction(mask: np.ndarray) -> float:
 
 def touches_border(mask: np.ndarray) -> bool:
     """True when the mask has object pixels on the image border."""
-    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+    return border_fraction(mask) > 0.0
 
 
 def _image_shape(crop_shape: tuple[int, ...], origin: tuple[int, int], image_shape: tuple[int, int] | None) -> tuple[int, int]:
