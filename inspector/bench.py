@@ -537,6 +537,12 @@ def add_parser(subparsers: Any) -> None:
                         "(aravis driver; needs root and the aravis packages), e.g. 16")
     b.add_argument("--triggers", type=int, default=40, help="timed triggers for --acquisition (default 40)")
     b.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
+    b.add_argument("--gui", action="store_true",
+                   help="measure the operator window instead (needs a display; --recipe defaults to recipes/demo.toml "
+                        "there): trigger to verdict shown against the headless cycle (median of --runs), event-loop "
+                        "stall during inspections, memory growth over --gui-inspections (inspector.gui.bench)")
+    b.add_argument("--gui-inspections", type=int, default=200, metavar="N",
+                   help="with --gui: inspections in one window; memory is sampled after 20 and after N (default 200)")
 
 
 def _default_reference(recipe_path: str, part: str) -> str | None:
@@ -572,6 +578,10 @@ def _check(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``inspector bench``; see the module docstring. Exit 0 targets met, 1 not met, 3 inspection error."""
+    if args.gui:  # Qt is imported there, never by this module
+        from inspector.gui.bench import run_gui_bench
+
+        return run_gui_bench(args)
     from inspector.cli import _load
 
     _check(args)

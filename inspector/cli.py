@@ -64,111 +64,44 @@ def _watch_params(args: argparse.Namespace) -> dict[str, Any] | None:
 
 def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: str | None, quiet: bool,
          watch: dict[str, Any] | None = None) -> int:
-    from inspector.runner import exit_status, run_batch
+    """``inspector run``: a :class:`~inspector.session.Session` whose events are printed."""
+    from inspector.outputs import one_line
+    from inspector.session import Inspected, RunStarted, Session, Source, Warned
 
-    pm, recipe, ref = _load(recipe_path, reference)
-    if watch is not None:
-        from inspector_drivers.replay.hotfolder import HotFolderDriver, HotFolderParams
+    session = Session.open(recipe_path, out, reference=reference)
 
-        if not Path(watch["folder"]).is_dir():
-            raise RecipeError(f"--watch {watch['folder']}: not a folder")
-        driver, total = HotFolderDriver(HotFolderParams(**watch)), watch["count"] or None
-    elif captures:
-        from inspector_drivers.replay import ReplayDriver, ReplayParams, expand
-
-        folders = _distinct_names(expand(list(captures)))
-        driver, total = ReplayDriver(ReplayParams(tuple(str(f) for f in folders))), len(folders)
-    else:
-        driver = recipe.driver.spec.open(recipe.driver.params)
-        total = getattr(recipe.driver.params, "count", None)
-    # Only the verdicts are kept: a live driver or a long batch must not hold every
-    # result's points in memory (5 MB a capture).
-    verdicts: list[str] = []
-    warned: set[str] = set()
-    counter = {"i": 0}
-
-    def progress(line: str) -> None:
-        counter["i"] += 1
-        if not quiet:
-            of = f"/{total}" if total else ""
-            print(f"[{counter['i']}{of}] {line}", flush=True)
-
-    try:
-        inbox = getattr(driver, "inbox", None)  # a hot folder
-        if inbox is not None and _inside(Path(out), inbox):
-            raise RecipeError(f"--out {out}: inside the inbox {inbox} (its result folders would be taken for captures)")
-        outdir = _result_folder(out)
-        if hasattr(driver, "taken"):  # a reused capture name must not overwrite a result
-            driver.taken = lambda name: (outdir / name).exists()
-        if inbox is not None and not quiet:
-            print(f"watching {inbox} for capture folders (Ctrl-C to stop); results in {outdir}", flush=True)
-        try:
-            for outcome in run_batch(recipe, driver.acquire(), pm, reference=ref, outdir=outdir, progress=progress):
-                verdicts.append(outcome.result.verdict)
-                for w in outcome.result.stats.get("warnings", ()):
-                    if w not in warned:  # once per run, not once per part
-                        warned.add(w)
-                        print(f"inspector: warning: {outcome.result.capture}: {w}", file=sys.stderr, flush=True)
-                if quiet and outcome.result.verdict == "error":  # no progress lines, but no silent error
-                    _err(f"{outcome.result.capture}: {outcome.result.error}")
-                del outcome
-        except KeyboardInterrupt:
-            if inbox is None:
-                raise
-            # Ctrl-C is how a watch ends: a capture being inspected stays in the inbox.
+    def show(event: object) -> None:
+        # Only the verdicts are kept (the summary counts them): a live driver or a long batch
+        # must not hold every result's points in memory (5 MB a capture).
+        if isinstance(event, RunStarted) and event.inbox is not None and not quiet:
+            print(f"watching {event.inbox} for capture folders (Ctrl-C to stop); results in {event.outdir}", flush=True)
+        elif isinstance(event, Inspected):
+            result = event.outcome.result
             if not quiet:
-                print("watch stopped", flush=True)
-    finally:
-        driver.close()
-    if not verdicts and inbox is not None:
-        if not quiet:
-            print(f"no capture arrived in {inbox}")
-        return EXIT_OK
-    if not verdicts:
-        raise RecipeError("no capture to inspect")
-    status = exit_status(verdicts)
-    if not quiet:
-        n = {v: verdicts.count(v) for v in ("pass", "fail", "error")}
-        print(f"{len(verdicts)} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {outdir.resolve()}")
-    return status
+                of = f"/{event.total}" if event.total else ""
+                print(f"[{event.index}{of}] {one_line(result)}", flush=True)
+            elif result.verdict == "error":  # no progress lines, but no silent error
+                _err(f"{result.capture}: {result.error}")
+        elif isinstance(event, Warned):
+            print(f"inspector: warning: {event.capture}: {event.text}", file=sys.stderr, flush=True)
 
-
-def _inside(path: Path, folder: Path) -> bool:
-    """Whether ``path`` is ``folder`` or lies under it (resolved)."""
-    p, f = path.resolve(), Path(folder).resolve()
-    return p == f or f in p.parents
-
-
-def _result_folder(out: str) -> Path:
-    """``--out``, created now: a folder that cannot be written is a command error, before
-    anything is inspected."""
-    outdir = Path(out)
-    if outdir.exists() and not outdir.is_dir():
-        raise RecipeError(f"--out {out}: is a file, not a folder")
+    session.subscribe(show)
     try:
-        outdir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise RecipeError(f"--out {out}: cannot create the result folder ({e.strerror or e})") from None
-    if not os.access(outdir, os.W_OK | os.X_OK):
-        raise RecipeError(f"--out {out}: the result folder is not writable")
-    return outdir
-
-
-def _distinct_names(folders: Sequence[Path]) -> list[Path]:
-    """The capture folders once each; two different folders with the same name would write
-    the same result folder (OUTDIR/<name>/): refused, naming both."""
-    seen: dict[str, Path] = {}
-    out = []
-    for f in folders:
-        key = f.name or str(f)
-        if key in seen:
-            if seen[key].resolve() == f.resolve():
-                continue  # the same capture given twice: inspected once
-            raise RecipeError(f"--capture: {seen[key]} and {f} are both named {key!r}; "
-                              f"their results would overwrite each other in OUTDIR/{key}/")
-        seen[key] = f
-        out.append(f)
-    return out
+        summary = session.run(Source(captures=tuple(captures or ()), watch=watch))
+    finally:
+        session.close()
+    if summary.inbox is not None and summary.ended == "interrupted" and not quiet:
+        print("watch stopped", flush=True)
+    if not summary.inspected and summary.inbox is not None:
+        if not quiet:
+            print(f"no capture arrived in {summary.inbox}")
+        return EXIT_OK
+    if not summary.inspected:
+        raise RecipeError("no capture to inspect")
+    if not quiet:
+        n = summary.counts
+        print(f"{summary.inspected} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {summary.outdir.resolve()}")
+    return summary.exit_status
 
 
 # -- simulate --------------------------------------------------------------------------
@@ -374,6 +307,13 @@ def build_parser() -> argparse.ArgumentParser:
     from inspector_drivers import capture_cmd
 
     capture_cmd.add_parser(sub)
+    from inspector import roles
+
+    roles.add_parser(sub)
+    # The GUI's parser only: Qt is imported when `inspector gui` runs, never for other commands.
+    from inspector.gui import app as gui_app
+
+    gui_app.add_parser(sub)
 
     pl = sub.add_parser("plugins", help="list stages and drivers with their parameters")
     pl.add_argument("--json", action="store_true", help="machine-readable output")
@@ -425,6 +365,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             return experiment.run(args)
         if args.command == "recipe":
             return _recipe_check(args)
+        if args.command == "roles":
+            from inspector import roles
+
+            return roles.run(args)
+        if args.command == "gui":
+            from inspector.gui import app as gui_app
+
+            return gui_app.run(args)
     except RecipeError as e:
         _err(str(e))
         return EXIT_INVALID

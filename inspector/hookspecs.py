@@ -9,15 +9,19 @@ distribution::
 
 Built-in stages and drivers are registered exactly this way (see ``pyproject.toml``).
 
-Two kinds of hooks:
+Three kinds of hooks:
 
 * **registry hooks** are called once when the plugin manager is built; a plugin adds
   its stages and drivers to the registry it is given;
-* **lifecycle hooks** are called by the runner around every stage and for every result,
-  so an integrator can publish results (PLC, MES, database) without touching the core.
+* **lifecycle hooks** are called by the session at a run's start and end, and by the
+  runner around every stage and for every result, so an integrator can publish results
+  (PLC, MES, database) or show progress without touching the core.
   They must not change what they receive. Each implementation is called on its own: one
   that raises is a one-line warning naming its plugin, and the inspection, the batch and
-  the other plugins go on (the built-in ``history`` plugin is such an observer).
+  the other plugins go on (the built-in ``history`` plugin is such an observer);
+* **GUI hooks** are called only by the operator GUI (``inspector gui``), never by the
+  headless core, so a plugin that implements one imports Qt inside it, and the core never
+  needs Qt.
 """
 
 from __future__ import annotations
@@ -29,6 +33,10 @@ import pluggy
 
 if TYPE_CHECKING:
     from inspector.model import InspectionResult
+    from inspector.recipe import Recipe
+    from inspector.session import RunSummary
+
+    from inspector.gui.window import MainWindow
     from inspector.pipeline import InspectionContext
     from inspector.registry import DriverRegistry, StageRegistry, StageSpec
 
@@ -52,6 +60,30 @@ def inspector_register_drivers(registry: DriverRegistry) -> None:
     """Add acquisition drivers with ``registry.add(DriverSpec(...))``."""
 
 
+# -- lifecycle: a run -------------------------------------------------------------------
+@hookspec
+def inspector_on_run_start(recipe: Recipe, outdir: Path, source: str) -> None:
+    """Called when a session starts a run, before the first capture is acquired.
+
+    Parameters
+    ----------
+    recipe : Recipe
+        The validated recipe the run inspects with.
+    outdir : Path
+        The run's result folder (one sub-folder per capture, ``history.sqlite``).
+    source : str
+        Where captures come from, in words: ``"captures"``, ``"watch INBOX"`` or
+        ``"driver NAME"``.
+    """
+
+
+@hookspec
+def inspector_on_run_end(recipe: Recipe, outdir: Path, summary: RunSummary) -> None:
+    """Called once when a run ends, however it ends (done, stopped, cancelled, or an
+    error of the driver); ``summary`` holds the verdict counts and how it ended."""
+
+
+# -- lifecycle: a capture ---------------------------------------------------------------
 @hookspec
 def inspector_before_stage(context: InspectionContext, stage: StageSpec, step: str) -> None:
     """Called before stage ``step`` (the recipe's name for it) runs on ``context``."""
@@ -71,3 +103,16 @@ def inspector_on_stage_error(context: InspectionContext, stage: StageSpec, step:
 def inspector_on_result(result: InspectionResult, outdir: Path | None) -> None:
     """Called once per capture with its final result (after the outputs were written,
     ``outdir`` being that capture's result folder, or None when nothing was written)."""
+
+
+# -- GUI (called only by ``inspector gui``) -------------------------------------------------
+@hookspec
+def inspector_gui_panel(window: MainWindow) -> tuple[str, object] | None:
+    """Return ``(title, widget)``: a panel (a ``QWidget``) the GUI adds as a dock widget.
+
+    Called once when the operator window is built, on the GUI thread. ``window`` is the
+    main window: its ``result_shown`` signal carries each result shown (a
+    :class:`inspector.gui.viewmodel.ResultView`), its ``run_finished`` signal each run's
+    summary, and ``current_result`` is the result on screen. A plugin that raises, or returns something
+    else than a title and a widget, is disabled with a warning naming it; the GUI goes on.
+    """

@@ -22,6 +22,8 @@ from inspector.registry import DriverRegistry, StageRegistry
 
 if TYPE_CHECKING:
     from inspector.model import InspectionResult
+    from inspector.recipe import Recipe
+    from inspector.session import RunSummary
     from inspector.pipeline import InspectionContext
     from inspector.registry import DriverSpec, StageSpec
 
@@ -76,6 +78,12 @@ class PluginManager:
     # Lifecycle hooks observe; one that raises (a PLC off the network, a full disk) must not
     # stop the inspection, the batch, or the other plugins: each implementation is called on
     # its own and a failure is one warning line naming the plugin.
+    def on_run_start(self, recipe: Recipe, outdir: Path, source: str) -> None:
+        self._observe("inspector_on_run_start", f"run of {recipe.name}", recipe=recipe, outdir=outdir, source=source)
+
+    def on_run_end(self, recipe: Recipe, outdir: Path, summary: RunSummary) -> None:
+        self._observe("inspector_on_run_end", f"run of {recipe.name}", recipe=recipe, outdir=outdir, summary=summary)
+
     def before_stage(self, context: InspectionContext, stage: StageSpec, step: str) -> None:
         self._observe("inspector_before_stage", f"{context.capture.name}/{step}", context=context, stage=stage, step=step)
 
@@ -104,6 +112,18 @@ class PluginManager:
                 msg = " ".join(str(e).split())
                 print(f"inspector: warning: {name} failed on {what} ({hook}): {type(e).__name__}: {msg}",
                       file=sys.stderr, flush=True)
+
+    def gui_panels(self, window: object) -> list[tuple[str, object]]:
+        """``(plugin name, what inspector_gui_panel returned or the exception it raised)``
+        for each implementation, each called on its own (the GUI checks and reports)."""
+        out: list[tuple[str, object]] = []
+        for impl in reversed(self.pm.hook.inspector_gui_panel.get_hookimpls()):
+            try:
+                value: object = impl.function(window=window)
+            except Exception as e:  # noqa: BLE001 - reported by the GUI, never raised
+                value = e
+            out.append((str(impl.plugin_name), value))
+        return out
 
     @staticmethod
     def _name(impl: object | None) -> str:

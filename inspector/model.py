@@ -358,3 +358,6 @@ class InspectionResult:
     rig: Rig | None = None
     #: capture.json's keys but polarity (part_id, timestamp, extras); {} when unknown.
     metadata: Mapping[str, Any] = field(default_factory=dict)
+    #: The recipe file (absolute) and the SHA-256 of its bytes, when it came from a file.
+    recipe_path: str | None = None
+    recipe_sha256: str | None = None

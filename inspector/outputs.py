@@ -61,6 +61,8 @@ def result_to_json(result: InspectionResult, *, with_points: bool) -> dict[str, 
             "stats": dict(result.stats),
             "defects": [d.to_json() for d in result.defects],
             "metadata": dict(result.metadata),
+            "recipe_path": result.recipe_path,
+            "recipe_sha256": result.recipe_sha256,
             "points": {
                 "bcps": BCPS_PLY if with_points and result.bcps is not None else None,
                 "reconstruction": RECON_PLY if with_points and result.reconstruction is not None else None,

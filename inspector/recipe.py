@@ -72,6 +72,9 @@ class Recipe:
     driver : DriverStep
     steps : tuple of Step
     tolerance : Tolerance
+    sha256 : str or None
+        Hex SHA-256 of the recipe file's bytes (None for a recipe built from a table):
+        what an inspection's result and report name as "the recipe", exactly.
     """
 
     name: str
@@ -80,6 +83,7 @@ class Recipe:
     driver: DriverStep
     steps: tuple[Step, ...]
     tolerance: Tolerance
+    sha256: str | None = None
 
 
 def _table(value: Any, where: str) -> Mapping[str, Any]:
@@ -235,5 +239,13 @@ def read_recipe_toml(path: str | Path) -> dict[str, Any]:
 
 def load_recipe(path: str | Path, pm: Any, *, reference: str | None = None) -> Recipe:
     """Read and validate a recipe file; raises RecipeError naming the file and key."""
-    return parse_recipe(read_recipe_toml(path), pm, path=Path(path), reference=reference)
+    import dataclasses
+    import hashlib
+
+    recipe = parse_recipe(read_recipe_toml(path), pm, path=Path(path), reference=reference)
+    try:
+        digest = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:  # read a moment ago: gone since, the recipe itself is valid
+        digest = None
+    return dataclasses.replace(recipe, path=Path(path).resolve(), sha256=digest)
 

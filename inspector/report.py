@@ -1,34 +1,107 @@
-"""A picture of one result: BCPS deviations in three views, defects circled.
+"""Pictures and reports of one result, read from its result folder (CONTRACT outputs only).
 
-``inspector report RESULT_DIR [...]`` writes ``deviation.png`` next to ``result.json``;
-it reads only the CONTRACT outputs, so it works on any result folder, later, elsewhere.
+``inspector report RESULT_DIR [...]`` writes ``deviation.png`` (BCPS deviations in three
+views, defects circled) next to ``result.json``; with ``--pdf`` it also writes
+``report.pdf``, a one-page A4 inspection report (:func:`render_pdf`, also used by the GUI).
+Both read only the CONTRACT outputs, so they work on any result folder, later, elsewhere.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import sys
+from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-__all__ = ["render_report", "add_parser", "run"]
+__all__ = ["render_report", "render_pdf", "add_parser", "run"]
+
+#: Verdicts that come without pose, statistics or points.
+_UNFINISHED = ("error", "aborted")
+
+#: The three orthographic views: (horizontal axis, vertical axis, title), reference frame.
+_VIEWS = ((0, 1, "top (X-Y)"), (0, 2, "front (X-Z)"), (1, 2, "side (Y-Z)"))
 
 
-def render_report(folder: Path, out: Path | None = None) -> Path:
-    """Render ``deviation.png`` for the result folder ``folder``; returns its path."""
+def _tolerance(res: dict) -> dict:
+    """The default tolerance band of a result, mm (``{"lower", "upper"}``)."""
+    return res["stats"].get("tolerance_mm", {"lower": -0.1, "upper": 0.1})
+
+
+def _draw_views(axes, res: dict, X: np.ndarray, dev: np.ndarray, *, labels: list[str] | None = None,
+                label_size: float = 8, title_size: float = 10, rasterized: bool = False):
+    """Draw the BCPS deviations in the three views of ``_VIEWS``, defects circled.
+
+    Parameters
+    ----------
+    axes : sequence of 3 matplotlib Axes
+        Where to draw the top, front and side views.
+    res : dict
+        The result (``pose``, ``stats``, ``defects`` are used).
+    X : (N, 3) array
+        BCPS points, world mm.
+    dev : (N,) array
+        Their signed deviations, mm.
+    labels : list of str, optional
+        One label per defect ("" for none); default: its kind and worst deviation.
+    label_size, title_size : float
+        Font sizes (points) of the defect labels and the view titles.
+    rasterized : bool
+        Draw the points as a bitmap (small, fast vector files such as PDF).
+
+    Returns
+    -------
+    matplotlib.collections.PathCollection
+        The last view's scatter, for a colour bar (all views share one colour scale).
+    """
+    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.patches import Circle
+
+    pose = np.array(res["pose"], float)
+    L = (X - pose[:3, 3]) @ pose[:3, :3]  # reference frame: what the drawing shows
+    tol = _tolerance(res)
+    lim = max(abs(tol["lower"]), abs(tol["upper"]), float(np.percentile(np.abs(dev), 99.5)))
+    norm = TwoSlopeNorm(vmin=-lim, vcenter=0.0, vmax=lim)
+    order = np.argsort(np.abs(dev))  # out-of-tolerance points drawn last, on top
+    defects = res.get("defects", [])
+    if labels is None:
+        labels = [f"{d['kind']} {d['worst_mm']:+.2f}" for d in defects]
+    sc = None
+    for ax, (a, b, name) in zip(axes, _VIEWS):
+        sc = ax.scatter(L[order, a], L[order, b], c=dev[order], s=1.5, cmap="coolwarm", norm=norm, linewidths=0,
+                        rasterized=rasterized)
+        for d, label in zip(defects, labels):
+            c = (np.asarray(d["position"]) - pose[:3, 3]) @ pose[:3, :3]
+            r = max(1.5, 0.6 * max(d["extent"]))
+            ax.add_patch(Circle((c[a], c[b]), r, fill=False, color="k", lw=1.2))
+            if label:
+                ax.annotate(label, (c[a] + r, c[b] + r), fontsize=label_size)
+        ax.set_aspect("equal")
+        ax.set_title(name, fontsize=title_size)
+        ax.set_xlabel("mm")
+    return sc
+
+
+def _pyplot():
+    """matplotlib.pyplot on the Agg backend (files only, no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.colors import TwoSlopeNorm
 
+    return plt
+
+
+def render_report(folder: Path, out: Path | None = None) -> Path:
+    """Render ``deviation.png`` for the result folder ``folder``; returns its path."""
+    plt = _pyplot()
     folder = Path(folder)
     res = _read_result(folder / "result.json")
-    named = (res.get("points") or {}).get("bcps")
-    points = None
-    if res["verdict"] != "error" and named:
-        points = _read_points(folder / str(named))
+    points = _result_points(folder, res)
     out = out or folder / "deviation.png"
     fig = plt.figure(figsize=(13, 4.8), dpi=110)
     title = f"{res['capture']}  —  {res['verdict'].upper()}"
@@ -37,27 +110,12 @@ def render_report(folder: Path, out: Path | None = None) -> Path:
         fig.savefig(out)
         plt.close(fig)
         return out
-    X, dev = points
-    pose = np.array(res["pose"], float)
-    L = (X - pose[:3, 3]) @ pose[:3, :3]  # reference frame: what the drawing shows
-    tol = res["stats"].get("tolerance_mm", {"lower": -0.1, "upper": 0.1})
-    lim = max(abs(tol["lower"]), abs(tol["upper"]), float(np.percentile(np.abs(dev), 99.5)))
-    norm = TwoSlopeNorm(vmin=-lim, vcenter=0.0, vmax=lim)
-    order = np.argsort(np.abs(dev))  # out-of-tolerance points drawn last, on top
-    defects = res.get("defects", [])
-    for k, (a, b, name) in enumerate(((0, 1, "top (X-Y)"), (0, 2, "front (X-Z)"), (1, 2, "side (Y-Z)"))):
-        ax = fig.add_subplot(1, 3, k + 1)
-        sc = ax.scatter(L[order, a], L[order, b], c=dev[order], s=1.5, cmap="coolwarm", norm=norm, linewidths=0)
-        for d in defects:
-            c = (np.asarray(d["position"]) - pose[:3, 3]) @ pose[:3, :3]
-            r = max(1.5, 0.6 * max(d["extent"]))
-            ax.add_patch(plt.Circle((c[a], c[b]), r, fill=False, color="k", lw=1.2))
-            ax.annotate(f"{d['kind']} {d['worst_mm']:+.2f}", (c[a] + r, c[b] + r), fontsize=8)
-        ax.set_aspect("equal")
-        ax.set_title(name, fontsize=10)
-        ax.set_xlabel("mm")
+    axes = [fig.add_subplot(1, 3, k + 1) for k in range(3)]
+    sc = _draw_views(axes, res, *points)
     cb = fig.colorbar(sc, ax=fig.axes, shrink=0.85, pad=0.02)
     cb.set_label("signed deviation, mm (negative: missing material)")
+    tol = _tolerance(res)
+    defects = res.get("defects", [])
     d = res["stats"].get("deviation_mm", {})
     fig.suptitle(
         f"{title}   mean {d.get('mean', 0):+.4f} mm, min {d.get('min', 0):+.3f}, max {d.get('max', 0):+.3f};"
@@ -71,8 +129,547 @@ def render_report(folder: Path, out: Path | None = None) -> Path:
     return out
 
 
+# -- the one-page PDF report ---------------------------------------------------------------
+#: verdict -> (word, banner colour, text colour, what it means). The word is always printed:
+#: the colour only repeats it.
+_VERDICTS = {
+    "pass": ("PASS", "#2e7d32", "white", "part within tolerance"),
+    "fail": ("FAIL", "#c62828", "white", "part out of tolerance"),
+    "error": ("ERROR", "#f0a202", "black", "inspection not completed"),
+    "aborted": ("ABORTED", "#757575", "white", "inspection cancelled"),
+}
+
+_W, _H = 8.27, 11.69  # A4 portrait, inches
+_MARGIN = 0.55
+_GREY = "#555555"
+_RULE = "#9e9e9e"
+_MAX_DEFECT_ROWS, _MIN_DEFECT_ROWS = 15, 5
+_PICTURE, _MIN_PICTURE = 2.0, 1.3  # height of the deviation views, inches: preferred, smallest
+_DEFECT_ROW_H = 7.5 * 1.45 / 72  # inches
+_MIN_RECIPE_TEXT = 0.9  # inches of recipe text the picture makes room for
+
+
+class _Page:
+    """An A4 figure drawn top-down in inches: ``y`` is the distance from the top edge."""
+
+    def __init__(self, fig) -> None:
+        self.fig = fig
+        self.y = _MARGIN  # the next free line, inches from the top
+
+    def text(self, x: float, y: float, s: str, **kw):
+        kw.setdefault("va", "top")
+        kw.setdefault("fontsize", 8)
+        return self.fig.text(x, _H - y, s, transform=self.fig.dpi_scale_trans, **kw)
+
+    def rule(self, y: float, x0: float = _MARGIN, x1: float = _W - _MARGIN, **kw) -> None:
+        from matplotlib.lines import Line2D
+
+        kw.setdefault("color", _RULE)
+        kw.setdefault("lw", 0.6)
+        self.fig.add_artist(Line2D([x0, x1], [_H - y, _H - y], transform=self.fig.dpi_scale_trans, **kw))
+
+    def box(self, x: float, y: float, w: float, h: float, **kw) -> None:
+        from matplotlib.patches import Rectangle
+
+        self.fig.add_artist(Rectangle((x, _H - y - h), w, h, transform=self.fig.dpi_scale_trans, **kw))
+
+    def axes(self, x: float, y: float, w: float, h: float):
+        return self.fig.add_axes((x / _W, 1 - (y + h) / _H, w / _W, h / _H))
+
+    def width(self, s: str, fontsize: float, **font) -> float:
+        """Width of ``s`` on the page, inches."""
+        from matplotlib.font_manager import FontProperties
+
+        renderer = self.fig.canvas.get_renderer()
+        w, _, _ = renderer.get_text_width_height_descent(s, FontProperties(size=fontsize, **font), ismath=False)
+        return w / self.fig.dpi
+
+    def wrap(self, s: str, width: float, fontsize: float, **font) -> list[str]:
+        """``s`` cut into lines no wider than ``width`` inches, at spaces."""
+        lines: list[str] = []
+        for word in s.split():
+            if lines and self.width(f"{lines[-1]} {word}", fontsize, **font) <= width:
+                lines[-1] += f" {word}"
+                continue
+            while self.width(word, fontsize, **font) > width:  # a long path: cut where it must
+                cut = max(1, len(self.fit(word, width, fontsize, **font)) - 1)
+                lines.append(word[:cut])
+                word = word[cut:]
+            lines.append(word)
+        return lines
+
+    def fit(self, s: Any, width: float, fontsize: float, **font) -> str:
+        """``s`` on one line, cut (with an ellipsis) to at most ``width`` inches."""
+        s = " ".join(str(s).split())
+        if self.width(s, fontsize, **font) <= width:
+            return s
+        lo, hi = 0, len(s)  # the longest prefix that fits, by bisection
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            lo, hi = (mid, hi) if self.width(s[:mid] + "…", fontsize, **font) <= width else (lo, mid - 1)
+        return s[:lo] + "…"
+
+    def heading(self, title: str) -> None:
+        """A section title over a thin rule; moves ``y`` below it."""
+        self.y += 0.12
+        self.text(_MARGIN, self.y, title, fontsize=10, fontweight="bold")
+        self.rule(self.y + 0.19)
+        self.y += 0.27
+
+
+def _line_h(fontsize: float, spacing: float = 1.3) -> float:
+    """Height of one text line, inches."""
+    return fontsize * spacing / 72
+
+
+def _num(x: Any, fmt: str, unit: str = "") -> str:
+    """``x`` formatted with ``fmt``, or an em dash when it is not a number."""
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
+        return "—"
+    try:
+        return f"{x:{fmt}}{unit}"
+    except ValueError:  # e.g. a float where a count was expected
+        return f"{x}{unit}"
+
+
+def _dict(x: Any) -> dict:
+    """``x`` when it is a dict, else an empty one (a damaged optional entry shows as "—")."""
+    return x if isinstance(x, dict) else {}
+
+
+def render_pdf(folder: Path, out: Path | None = None, *, picture: Path | None = None,
+               recipe: Path | None = None) -> Path:
+    """Write the one-page A4 inspection report of a result folder as a PDF.
+
+    The page holds the verdict (word and colour), the capture, part id, inspection time and
+    cycle time, the reason of a FAIL (worst defect and the tolerance limit it breaks) or the
+    error line, a picture of the deviations, the statistics with the time of each stage,
+    the defects (worst first, at most 15 rows) and the recipe (name, SHA-256 and text).
+
+    Parameters
+    ----------
+    folder : Path
+        A result folder (``result.json``, and ``bcps_points.ply`` when it names one).
+    out : Path, optional
+        The PDF to write; default ``folder / "report.pdf"``. Written to a temporary name and
+        renamed, so a reader never sees half a file.
+    picture : Path, optional
+        A PNG shown as the deviation picture (e.g. a 3D view saved by the GUI); default:
+        the three views of :func:`render_report`, drawn from the BCPS points.
+    recipe : Path, optional
+        The recipe file to show; default: the file ``result.json`` names
+        (``recipe_path``, checked against ``recipe_sha256``).
+
+    Returns
+    -------
+    Path
+        The PDF written.
+
+    Raises
+    ------
+    InputError
+        ``result.json``, the points, ``picture`` or ``recipe`` is missing or unreadable;
+        the message names the file.
+    """
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    folder = Path(folder)
+    path = folder / "result.json"
+    res = _read_result(path)
+    points = _result_points(folder, res)
+    image = _read_picture(Path(picture)) if picture is not None else None
+    rec = _recipe_info(res, Path(recipe) if recipe is not None else None)
+    out = Path(out) if out is not None else folder / "report.pdf"
+    when = _inspection_time(res, path)
+
+    # A Figure of its own, not pyplot's: the GUI's figures and backend are left alone.
+    # Type 42 fonts: real TrueType text, which readers can search and copy.
+    with matplotlib.rc_context({"pdf.fonttype": 42, "font.family": "DejaVu Sans"}):
+        fig = Figure(figsize=(_W, _H))
+        FigureCanvasAgg(fig)  # measures text while the page is laid out
+
+        def compose(size: float, rows: int) -> float:
+            """Draw the page with a picture ``size`` inches high and at most ``rows`` defect
+            rows; returns the height left for the recipe text."""
+            fig.clear()
+            page = _Page(fig)
+            _draw_banner(page, res)
+            _draw_identity(page, res, folder, when, rec)
+            _draw_reason(page, res, rec)
+            _draw_picture(page, res, points, image, size, rows)
+            _draw_stats(page, res)
+            _draw_defects(page, res, rows)
+            left = _draw_recipe(page, rec)
+            _draw_footer(page, folder)
+            return left
+
+        # Everything on one page: when the rest needs the room, a smaller picture first,
+        # then fewer defect rows.
+        short = (_MIN_RECIPE_TEXT if rec["text"] is not None else 0.0) - compose(_PICTURE, _MAX_DEFECT_ROWS)
+        if short > 0:
+            size = max(_PICTURE - short, _MIN_PICTURE)
+            short -= _PICTURE - size
+            cut = int(np.ceil(short / _DEFECT_ROW_H)) + 1 if short > 0 else 0  # +1: the "and N more" line
+            compose(size, max(_MAX_DEFECT_ROWS - cut, _MIN_DEFECT_ROWS))
+        tmp = out.with_name(out.name + ".part")
+        try:
+            fig.savefig(tmp, format="pdf", dpi=200, metadata={
+                "Title": f"Inspection report: {res['capture']} {res['verdict'].upper()}",
+                "Subject": f"verdict {res['verdict']}", "Creator": "inspector report"})
+            os.replace(tmp, out)
+        finally:
+            tmp.unlink(missing_ok=True)
+    return out
+
+
+def _inspection_time(res: dict, path: Path) -> tuple[str, str]:
+    """When the part was inspected, and a note on the source: the capture's time
+    (metadata ``timestamp`` or ``triggered_at``) if known, else result.json's mtime."""
+    meta = _dict(res.get("metadata"))
+    for key in ("timestamp", "triggered_at"):
+        if meta.get(key):
+            return " ".join(str(meta[key]).split()), ""
+    t = datetime.fromtimestamp(path.stat().st_mtime, tz=timezone.utc).astimezone()
+    return t.isoformat(timespec="seconds"), "(result file time)"
+
+
+def _draw_banner(page: _Page, res: dict) -> None:
+    """The verdict in words on its colour, and the capture's name."""
+    verdict = str(res["verdict"])
+    word, colour, ink, meaning = _VERDICTS.get(verdict, (verdict.upper(), "#757575", "white", "unknown verdict"))
+    h = 0.85
+    page.box(_MARGIN, page.y, _W - 2 * _MARGIN, h, facecolor=colour, edgecolor="none")
+    word = page.fit(word, 3.0, 32, weight="bold")
+    page.text(_MARGIN + 0.22, page.y + h / 2, word, fontsize=32, fontweight="bold", color=ink, va="center")
+    x = max(2.45, 0.22 + page.width(word, 32, weight="bold") + 0.3)  # the meaning, after the word
+    page.text(_MARGIN + x, page.y + h / 2, page.fit(meaning, 4.75 - x, 11), fontsize=11, color=ink, va="center")
+    page.text(_W - _MARGIN - 0.22, page.y + 0.2, "Inspection report", fontsize=9, color=ink, ha="right")
+    page.text(_W - _MARGIN - 0.22, page.y + 0.43, page.fit(res["capture"], 2.1, 12, weight="bold"), fontsize=12,
+              fontweight="bold", color=ink, ha="right")
+    page.y += h + 0.18
+
+
+def _draw_identity(page: _Page, res: dict, folder: Path, when: tuple[str, str], rec: dict) -> None:
+    """Capture, part id, time, cycle time, recipe and folder, in two columns."""
+    meta = _dict(res.get("metadata"))
+    total = _dict(res.get("timings_s")).get("total")
+    part = meta.get("part_id")
+    rows = [
+        ("Capture", res["capture"], "Part id", "—" if part is None else part),
+        ("Inspected", when[0], "Cycle time", _num(total, ".2f", " s")),
+        ("Recipe", rec["name"], "Result folder", folder.resolve().name),
+    ]
+    lh = _line_h(9, 1.45)
+    for k, (k1, v1, k2, v2) in enumerate(rows):
+        y = page.y + k * lh
+        for x, width, key, value in ((_MARGIN, 3.1, k1, v1), (_MARGIN + 4.3, _W - 2 * _MARGIN - 5.35, k2, v2)):
+            weight = "bold" if key == "Capture" else "normal"
+            page.text(x, y, key, fontsize=9, color=_GREY)
+            page.text(x + 1.05, y, page.fit(value, width, 9, weight=weight), fontsize=9, fontweight=weight)
+        if k == 1 and when[1]:  # where the time comes from, when it is not the capture's
+            x = _MARGIN + 1.05 + page.width(when[0], 9) + 0.08
+            page.text(x, y + 0.02, when[1], fontsize=7, color=_GREY)
+    page.y += len(rows) * lh + 0.05
+
+
+def _reason(res: dict, rec: dict) -> tuple[str, str]:
+    """(label, sentence) saying why the verdict is what it is."""
+    verdict = res["verdict"]
+    stats = _dict(res.get("stats"))
+    if verdict in _UNFINISHED:
+        return ("Error" if verdict == "error" else "Aborted", str(res.get("error") or "no reason recorded"))
+    tol = _dict(stats.get("tolerance_mm"))
+    lo, hi = tol.get("lower"), tol.get("upper")
+    defects = res.get("defects") or []
+    if verdict == "fail" and defects:
+        d = defects[0]  # the evaluate stage lists them worst first
+        band = (lo, hi) if d["region"] == "default" else _region_band(rec.get("text"), d["region"])
+        missing = d["kind"] == "missing" or d["worst_mm"] < 0
+        side, limit = ("below the lower", band[0]) if missing else ("above the upper", band[1])
+        if band[0] is None:
+            broken = ("outside the tolerance (its band is not in this result)" if d["region"] == "default" else
+                      f"outside the tolerance of region '{d['region']}' (its band is not in the recipe shown)")
+        else:
+            scope = "" if d["region"] == "default" else f"region '{d['region']}' "
+            broken = (f"{side} limit {_num(limit, '+.3f')} mm of the {scope}tolerance "
+                      f"[{_num(band[0], '+.3f')}, {_num(band[1], '+.3f')}] mm")
+        others = f"; {len(defects) - 1} more defect(s) below" if len(defects) > 1 else ""
+        return ("Reason", f"{d['kind']} material in region '{d['region']}': worst {d['worst_mm']:+.3f} mm, "
+                          f"{broken} ({d['n_points']} points, defect #1){others}.")
+    within = stats.get("within_tolerance")
+    share = f"{_num(100 * within, '.2f', ' %') if isinstance(within, (int, float)) else '—'} of "
+    band = f"[{_num(lo, '+.3f')}, {_num(hi, '+.3f')}] mm"
+    if verdict == "fail":
+        return ("Reason", f"out of tolerance ({stats.get('out_of_tolerance_points', '—')} points outside {band}); "
+                          "no defect cluster recorded.")
+    return ("Result", f"{share}{_num(stats.get('n_points'), ',d')} BCPS points within the tolerance {band}; "
+                      f"{len(defects) or 'no'} defect(s).")
+
+
+def _region_band(text: str | None, region: str) -> tuple[Any, Any]:
+    """(lower, upper) of a tolerance region in the recipe text; (None, None) when unknown."""
+    import tomllib
+
+    try:
+        regions = tomllib.loads(text or "").get("tolerance", {}).get("regions", [])
+        band = next(r for r in regions if r.get("name") == region)
+        return band["lower"], band["upper"]
+    except (tomllib.TOMLDecodeError, AttributeError, KeyError, StopIteration):
+        return None, None
+
+
+def _draw_reason(page: _Page, res: dict, rec: dict) -> None:
+    """The reason (or error) line, at most 4 lines, and at most two warnings of the result."""
+    reason = _reason(res, rec)
+    colour = {"fail": "#b71c1c", "error": "#8a5a00"}.get(res["verdict"], "black")
+    width = _W - 2 * _MARGIN - 1.05
+    lines = page.wrap(reason[1], width, 9)
+    if len(lines) > 4:
+        lines = lines[:3] + [page.fit(" ".join(lines[3:]), width, 9)]
+    page.text(_MARGIN, page.y, reason[0], fontsize=9, color=_GREY)
+    for k, line in enumerate(lines):
+        page.text(_MARGIN + 1.05, page.y + k * _line_h(9), line, fontsize=9, color=colour)
+    page.y += len(lines) * _line_h(9)
+    warnings = _dict(res.get("stats")).get("warnings") or []  # e.g. a tolerance the rig cannot resolve
+    if not isinstance(warnings, list):
+        warnings = [warnings]
+    shown = [f"warning: {w}" for w in warnings[:2]] + ([f"and {len(warnings) - 2} more warning(s) in result.json"]
+                                                       if len(warnings) > 2 else [])
+    for w in shown:
+        lines = page.wrap(w, width, 8)
+        for line in lines[:1] + ([page.fit(" ".join(lines[1:]), width, 8)] if len(lines) > 1 else []):
+            page.text(_MARGIN + 1.05, page.y, line, fontsize=8, color="#b00000")
+            page.y += _line_h(8)
+
+
+def _draw_picture(page: _Page, res: dict, points, image, side: float, rows: int) -> None:
+    """The given picture, else the three views (``side`` inches square) and their colour bar."""
+    page.heading("Deviation map")
+    w = _W - 2 * _MARGIN
+    if image is not None:
+        h = side + 0.85  # the room the three views and their colour bar would take
+        ax = page.axes(_MARGIN, page.y, w, h)
+        ax.imshow(image, interpolation="none")  # embedded as it is, not resampled
+        ax.set_axis_off()
+        page.y += h + 0.05
+        return
+    if points is None:
+        h = 0.5
+        page.box(_MARGIN, page.y, w, h, facecolor="#f2f2f2", edgecolor=_RULE, lw=0.6)
+        page.text(_W / 2, page.y + h / 2, "no deviation map: this inspection produced no BCPS points",
+                  ha="center", va="center", fontsize=9, color=_GREY)
+        page.y += h + 0.05
+        return
+    gap = min((w - 0.3 - 3 * side) / 2, 0.55)
+    x0 = _MARGIN + 0.15 + (w - 0.3 - 3 * side - 2 * gap) / 2  # the group centred, room for tick labels
+    axes = [page.axes(x0 + k * (side + gap), page.y + 0.2, side, side) for k in range(3)]
+    # Defects numbered as in the table; those past its last row circled only.
+    labels = [str(i + 1) if i < rows else "" for i in range(len(res.get("defects", [])))]
+    sc = _draw_views(axes, res, *points, labels=labels, label_size=7, title_size=8, rasterized=True)
+    for ax in axes:
+        ax.set_aspect("equal", adjustable="datalim")  # three boxes of one size, one scale per view
+        ax.tick_params(labelsize=6, length=2)
+        ax.xaxis.label.set_size(6.5)
+        for label in ax.texts:
+            label.set_clip_on(True)
+            label.set_fontweight("bold")
+            label.set_bbox({"facecolor": "white", "alpha": 0.75, "edgecolor": "none", "pad": 0.6})
+    cax = page.axes(_MARGIN + 1.5 * w / 6, page.y + side + 0.62, w / 2, 0.09)
+    cb = page.fig.colorbar(sc, cax=cax, orientation="horizontal")
+    cb.ax.tick_params(labelsize=6, length=2)
+    cb.set_label("signed deviation, mm (negative: missing material); circles: defects, numbered as below",
+                 fontsize=7)
+    page.y += side + 1.05
+
+
+def _draw_stats(page: _Page, res: dict) -> None:
+    """Deviation, alignment and size, and the time of each stage, in three columns."""
+    page.heading("Statistics")
+    stats = _dict(res.get("stats"))
+    dev = _dict(stats.get("deviation_mm"))
+    tol = _dict(stats.get("tolerance_mm"))
+    al = _dict(stats.get("alignment"))
+    size = _dict(stats.get("size_fit"))
+    within = stats.get("within_tolerance")
+    shift = size.get("shift_mm")
+    columns = [
+        ("Deviation", [
+            ("BCPS points", _num(stats.get("n_points"), ",d")),
+            ("mean", _num(dev.get("mean"), "+.4f", " mm")),
+            ("min / max", f"{_num(dev.get('min'), '+.3f')} / {_num(dev.get('max'), '+.3f')} mm"),
+            ("p01 / p99", f"{_num(dev.get('p01'), '+.3f')} / {_num(dev.get('p99'), '+.3f')} mm"),
+            ("within tolerance", _num(100 * within, ".2f", " %") if isinstance(within, (int, float)) else "—"),
+            ("tolerance", f"[{_num(tol.get('lower'), '+.3f')}, {_num(tol.get('upper'), '+.3f')}] mm"),
+        ]),
+        ("Alignment and size", [
+            ("method", str(al.get("method", "—"))),
+            ("fitness", _num(al.get("fitness"), ".4f")),
+            ("RMSE", _num(al.get("rmse_mm"), ".4f", " mm")),
+            ("size scale", _num(size.get("scale"), ".5f") if size else "— (not fitted)"),
+            ("size inliers", _num(100 * size["inliers"], ".1f", " %")
+             if isinstance(size.get("inliers"), (int, float)) else "—"),
+            ("size shift", ", ".join(_num(v, "+.2f") for v in shift) + " mm"
+             if isinstance(shift, list) and len(shift) == 3 else "—"),
+        ]),
+        ("Cycle time per stage", [
+            (k, _num(v, ".3f", " s")) for k, v in _dict(res.get("timings_s")).items() if k != "total"
+        ][:8] + [("total", _num(_dict(res.get("timings_s")).get("total"), ".3f", " s"))]),
+    ]
+    lh, colw = _line_h(8, 1.4), (_W - 2 * _MARGIN) / 3
+    for c, (title, rows) in enumerate(columns):
+        x = _MARGIN + c * colw
+        page.text(x, page.y, title, fontsize=8, fontweight="bold")
+        for k, (key, value) in enumerate(rows):
+            y = page.y + (k + 1) * lh
+            bold = "bold" if key == "total" else "normal"
+            # The value first, leaving the key up to 0.9 inch; the key gets the rest.
+            value = page.fit(value, colw - 0.3 - min(page.width(key, 8, weight=bold), 0.9), 8, weight=bold)
+            key = page.fit(key, colw - 0.3 - page.width(value, 8, weight=bold), 8, weight=bold)
+            page.text(x, y, key, color=_GREY, fontweight=bold)
+            page.text(x + colw - 0.2, y, value, ha="right", fontweight=bold)
+    page.y += (1 + max(len(rows) for _, rows in columns)) * lh
+
+
+def _draw_defects(page: _Page, res: dict, rows: int) -> None:
+    """The defect table, worst first: at most ``rows`` rows, then a count of the others."""
+    defects = res.get("defects") or []
+    page.heading(f"Defects ({len(defects)})")
+    if not defects:
+        page.text(_MARGIN, page.y, "no defect", fontsize=8, color=_GREY)
+        page.y += _line_h(8)
+        return
+    # (title, x of its anchor, alignment)
+    cols = (("#", 0.22, "right"), ("kind", 0.35, "left"), ("region", 1.05, "left"), ("points", 2.4, "right"),
+            ("worst, mm", 3.2, "right"), ("position x, y, z, mm", 5.25, "right"), ("extent, mm", 7.17, "right"))
+    lh = _DEFECT_ROW_H
+    for title, x, ha in cols:
+        page.text(_MARGIN + x, page.y, title, fontsize=7.5, fontweight="bold", ha=ha)
+    page.rule(page.y + lh - 0.02, lw=0.4)
+    for i, d in enumerate(defects[:rows]):
+        y = page.y + (i + 1) * lh + 0.02
+        if i % 2:
+            page.box(_MARGIN, y - 0.025, _W - 2 * _MARGIN, lh, facecolor="#f3f3f3", edgecolor="none")
+        cells = (str(i + 1), page.fit(d["kind"], 0.65, 7.5), page.fit(d["region"], 0.85, 7.5), f"{d['n_points']:,d}",
+                 f"{d['worst_mm']:+.3f}", ", ".join(f"{v:.1f}" for v in d["position"]),
+                 " × ".join(f"{v:.1f}" for v in d["extent"]))
+        for (_, x, ha), cell in zip(cols, cells):
+            page.text(_MARGIN + x, y, cell, fontsize=7.5, ha=ha)
+    n = min(len(defects), rows)
+    page.y += (n + 1) * lh + 0.06
+    if len(defects) > n:
+        page.text(_MARGIN + 0.35, page.y, f"and {len(defects) - n} more (result.json lists them all)",
+                  fontsize=7.5, color=_GREY)
+        page.y += lh
+
+
+def _recipe_info(res: dict, recipe: Path | None) -> dict:
+    """What the page says about the recipe: name, file, SHA-256, text and a note.
+
+    ``recipe`` (given) is read and hashed; else the file ``result.json`` names
+    (``recipe_path``) is shown only when its bytes still have the recorded ``recipe_sha256``.
+    """
+    from inspector.errors import InputError
+
+    recorded = res.get("recipe_sha256") if isinstance(res.get("recipe_sha256"), str) else None
+    info: dict[str, Any] = {"name": str(res.get("recipe") or "—"), "path": None, "sha256": recorded,
+                            "text": None, "note": None}
+    if recipe is not None:
+        try:
+            data = recipe.read_bytes()
+        except OSError as e:
+            raise InputError(f"{recipe}: cannot read ({e.strerror or type(e).__name__})") from None
+        info.update(path=str(recipe.resolve()), sha256=hashlib.sha256(data).hexdigest(),
+                    text=data.decode("utf-8", "replace"))
+        if recorded and recorded != info["sha256"]:
+            info["note"] = f"not the recipe this inspection recorded (SHA-256 {recorded})"
+        return info
+    named = res.get("recipe_path")
+    if not isinstance(named, str) or not named:
+        info["note"] = "(recipe file not found)" if recorded else "recipe file not recorded in result.json"
+        return info
+    info["path"] = named
+    try:
+        data = Path(named).read_bytes()
+    except OSError:
+        info["note"] = "(recipe file not found)"
+        return info
+    now = hashlib.sha256(data).hexdigest()
+    if recorded and now != recorded:
+        info["note"] = f"the file has changed since the inspection (now SHA-256 {now}); its text is not shown"
+        return info
+    info.update(sha256=now, text=data.decode("utf-8", "replace"))
+    return info
+
+
+def _draw_recipe(page: _Page, rec: dict) -> float:
+    """Recipe name, file, SHA-256 and its text in the space left above the footer.
+
+    Returns the height (inches) that was left for the text.
+    """
+    page.heading("Recipe")
+    lh = _line_h(8, 1.4)
+    rows = [("name", rec["name"]), ("file", rec["path"] or "—"), ("SHA-256", rec["sha256"] or "—")]
+    width = _W - 2 * _MARGIN - 1.05
+    for k, (key, value) in enumerate(rows):
+        page.text(_MARGIN, page.y + k * lh, key, color=_GREY)
+        if key == "SHA-256" and rec["sha256"]:
+            mono = {"family": "DejaVu Sans Mono"}
+            page.text(_MARGIN + 1.05, page.y + k * lh, page.fit(value, width, 7.5, **mono), fontsize=7.5, **mono)
+        else:
+            page.text(_MARGIN + 1.05, page.y + k * lh, page.fit(value, width, 8))
+    page.y += len(rows) * lh
+    if rec["note"]:
+        page.text(_MARGIN + 1.05, page.y, page.fit(rec["note"], width, 8), color="#b00000")
+        page.y += lh
+    text = rec["text"]
+    bottom = _H - _MARGIN - 0.3  # above the footer
+    room = bottom - page.y
+    if text is None or room < 0.3:
+        return room
+    # Monospace text in the columns (1 to 3) that show the most of it; what does not fit is cut.
+    size = 6.0
+    y0, lh, cw = page.y + 0.08, _line_h(size, 1.25), 0.6 * size / 72  # DejaVu Sans Mono advance: 0.6 em
+    page.box(_MARGIN, y0 - 0.05, _W - 2 * _MARGIN, bottom - y0 + 0.05, facecolor="#f6f6f6", edgecolor=_RULE, lw=0.5)
+    lines = text.expandtabs(4).splitlines()
+    per_col = max(1, int((bottom - y0 - 0.05) / lh))
+
+    def layout(ncols: int) -> tuple[int, int, list[str]]:
+        """(lines shown, characters shown, columns, lines) when set in ``ncols`` columns."""
+        width = int(((_W - 2 * _MARGIN) / ncols - 0.2) / cw)
+        fit = per_col * ncols
+        shown = lines if len(lines) <= fit else lines[: fit - 1] + [f"… {len(lines) - fit + 1} more line(s)"]
+        cut = [ln if len(ln) <= width else ln[: width - 1] + "…" for ln in shown]
+        kept = cut[: min(len(lines), fit if len(lines) <= fit else fit - 1)]
+        return len(kept), sum(len(ln) for ln in kept), ncols, cut
+
+    _, _, ncols, cut = max(layout(n) for n in (1, 2, 3))  # every line first, then the most text
+    colw = (_W - 2 * _MARGIN) / ncols
+    for c in range(ncols):
+        chunk = cut[c * per_col:(c + 1) * per_col]
+        if chunk:
+            page.text(_MARGIN + 0.1 + c * colw, y0, "\n".join(chunk), family="DejaVu Sans Mono", fontsize=size,
+                      linespacing=1.25)
+    page.y = bottom
+    return room
+
+
+def _draw_footer(page: _Page, folder: Path) -> None:
+    """Who made the page, when, from which folder; the page number."""
+    from inspector import __version__
+
+    now = datetime.now(timezone.utc).astimezone().isoformat(timespec="seconds")
+    y = _H - _MARGIN - 0.12
+    page.rule(y - 0.06)
+    page.text(_MARGIN, y, page.fit(f"inspector {__version__} · report generated {now} · {folder.resolve()}",
+                                   _W - 2 * _MARGIN - 0.8, 6.5), fontsize=6.5, color=_GREY)
+    page.text(_W - _MARGIN, y, "page 1 of 1", fontsize=6.5, color=_GREY, ha="right")
+
+
+# -- reading a result folder -----------------------------------------------------------------
 def _read_result(path: Path) -> dict:
-    """result.json (CONTRACT) with what the picture needs checked; InputError otherwise."""
+    """result.json (CONTRACT) with what the pictures need checked; InputError otherwise."""
     from inspector.errors import InputError
 
     try:
@@ -81,15 +678,55 @@ def _read_result(path: Path) -> dict:
         raise InputError(f"{path}: cannot read ({type(e).__name__})") from None
     if not isinstance(res, dict):
         raise InputError(f"{path}: not a result (a JSON object is expected)")
-    need = ("capture", "verdict") if res.get("verdict") == "error" else ("capture", "verdict", "pose", "stats")
+    need = ("capture", "verdict") if res.get("verdict") in _UNFINISHED else ("capture", "verdict", "pose", "stats")
     missing = [k for k in need if k not in res]
     if missing:
         raise InputError(f"{path}: missing key {missing[0]!r}")
-    if res["verdict"] != "error":
-        pose = np.asarray(res["pose"], dtype=object)
-        if pose.shape != (4, 4):
+    if not isinstance(res["verdict"], str):
+        raise InputError(f"{path}: verdict must be a string")
+    if res["verdict"] not in _UNFINISHED:
+        try:
+            pose = np.asarray(res["pose"], dtype=float)
+        except (TypeError, ValueError):  # not numbers, or rows of different lengths
+            pose = None
+        if pose is None or pose.shape != (4, 4):
             raise InputError(f"{path}: pose must be a 4x4 matrix")
+        if not isinstance(res["stats"], dict):
+            raise InputError(f"{path}: stats must be an object")
+        tol = res["stats"].get("tolerance_mm", {"lower": 0.0, "upper": 0.0})
+        if not (isinstance(tol, dict) and all(isinstance(tol.get(k), (int, float)) for k in ("lower", "upper"))):
+            raise InputError(f"{path}: stats.tolerance_mm must have numbers lower and upper")
+    _check_defects(path, res.get("defects", []))
     return res
+
+
+def _check_defects(path: Path, defects: Any) -> None:
+    """Every defect has the keys and types the pictures use; InputError naming the first bad one."""
+    from inspector.errors import InputError
+
+    if not isinstance(defects, list):
+        raise InputError(f"{path}: defects must be a list")
+    for i, d in enumerate(defects):
+        where = f"{path}: defects[{i}]"
+        if not isinstance(d, dict):
+            raise InputError(f"{where}: not an object")
+        for key in ("kind", "region", "n_points", "worst_mm", "position", "extent"):
+            if key not in d:
+                raise InputError(f"{where}: missing key {key!r}")
+        if not isinstance(d["worst_mm"], (int, float)) or not isinstance(d["n_points"], int):
+            raise InputError(f"{where}: worst_mm and n_points must be numbers")
+        for key in ("position", "extent"):
+            v = d[key]
+            if not (isinstance(v, list) and len(v) == 3 and all(isinstance(x, (int, float)) for x in v)):
+                raise InputError(f"{where}: {key} must be 3 numbers")
+
+
+def _result_points(folder: Path, res: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """The BCPS points of a finished result, or None when it has none."""
+    named = (_dict(res.get("points"))).get("bcps")
+    if res["verdict"] in _UNFINISHED or not named:
+        return None
+    return _read_points(folder / str(named))
 
 
 def _read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -109,9 +746,27 @@ def _read_points(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([p["x"], p["y"], p["z"]], axis=1).astype(float), p["deviation"].astype(float)
 
 
+def _read_picture(path: Path) -> np.ndarray:
+    """A PNG as an image array; InputError naming the file otherwise."""
+    from matplotlib.image import imread
+
+    from inspector.errors import InputError
+
+    if not path.is_file():
+        raise InputError(f"{path}: picture not found")
+    try:
+        return imread(path, format="png")
+    except Exception as e:  # noqa: BLE001 - Pillow raises several types for a bad image
+        raise InputError(f"{path}: not a readable PNG ({type(e).__name__})") from None
+
+
+# -- command line -----------------------------------------------------------------------------
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("report", help="draw deviation.png for result folders (from result.json and bcps_points.ply)")
+    p = subparsers.add_parser("report", help="draw deviation.png (and report.pdf) for result folders")
     p.add_argument("results", nargs="+", metavar="RESULT_DIR", help="result folders (one per capture) or their parent")
+    p.add_argument("--pdf", action="store_true", help="also write report.pdf, a one-page A4 inspection report")
+    p.add_argument("--recipe", metavar="RECIPE", type=Path,
+                   help="recipe file shown in report.pdf (default: the one result.json names)")
 
 
 def run(args) -> int:
@@ -125,6 +780,8 @@ def run(args) -> int:
     for f in folders:
         try:
             print(f"wrote {render_report(f)}", flush=True)
+            if getattr(args, "pdf", False):
+                print(f"wrote {render_pdf(f, recipe=getattr(args, 'recipe', None))}", flush=True)
         except InputError as e:
             print(f"inspector: error: {e}", file=sys.stderr, flush=True)
             status = 3

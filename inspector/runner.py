@@ -1,12 +1,15 @@
 """Run a recipe on captures: every stage timed, every capture isolated from the others.
 
 A capture that cannot be inspected becomes a result with verdict ``"error"`` and a one-line
-reason; the batch goes on. Unexpected exceptions (bugs) are reported the same way, with the
+reason; the batch goes on. A capture cancelled between two stages (``should_abort``) becomes
+verdict ``"aborted"``: nothing is written for it, no ``inspector_on_result`` is called, and
+the batch stops there. Unexpected exceptions (bugs) are reported the same way, with the
 traceback written to ``traceback.txt`` in that capture's result folder, never to the user.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator
@@ -15,13 +18,17 @@ from pathlib import Path
 from typing import Any
 
 from inspector.errors import InspectorError
+from inspector.manager import PluginManager
 from inspector.model import Capture, InspectionResult
 from inspector.pipeline import InspectionContext
 from inspector.recipe import Recipe
 from inspector.reference import Reference
 from inspector.registry import Acquisition
 
-__all__ = ["Outcome", "inspect_capture", "run_batch", "exit_status"]
+__all__ = ["ABORTED", "Outcome", "inspect_capture", "run_batch", "exit_status"]
+
+#: Verdict of a capture cancelled between stages (never written, never a history row).
+ABORTED = "aborted"
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,23 +75,33 @@ def inspect_capture(
     capture: Capture,
     recipe: Recipe,
     reference: Reference | None,
-    pm: Any,
+    pm: PluginManager,
     *,
     load_s: float | None = None,
+    should_abort: Callable[[], bool] | None = None,
 ) -> Outcome:
     """Run every stage of ``recipe`` on ``capture``.
+
+    Parameters
+    ----------
+    should_abort : callable, optional
+        Asked before each stage; True ends the inspection there with verdict ``"aborted"``.
 
     Returns
     -------
     Outcome
         Verdict ``"pass"``/``"fail"`` from the evaluate stage (``"pass"`` when the recipe has
-        none), or ``"error"`` with a one-line reason naming the stage.
+        none), ``"error"`` with a one-line reason naming the stage, or ``"aborted"``.
     """
     ctx = InspectionContext(capture=capture, reference=reference, tolerance=recipe.tolerance)
     timings: dict[str, float] = {} if load_s is None else {"load": load_s}
     # "total" includes the time spent reading the capture, when known.
     t_start = time.perf_counter() - (load_s or 0.0)
     for step in recipe.steps:
+        if should_abort is not None and should_abort():
+            timings["total"] = time.perf_counter() - t_start
+            aborted = _error_result(capture.name, recipe, f"cancelled before stage {step.name}", timings, capture)
+            return Outcome(dataclasses.replace(aborted, verdict=ABORTED), ctx)
         pm.before_stage(ctx, step.spec, step.name)
         t0 = time.perf_counter()
         try:
@@ -118,8 +135,14 @@ def inspect_capture(
         bcps=ctx.bcps,
         rig=capture.rig,
         metadata=dict(capture.metadata),
+        recipe_path=_path(recipe),
+        recipe_sha256=recipe.sha256,
     )
     return Outcome(result, ctx)
+
+
+def _path(recipe: Recipe) -> str | None:
+    return str(recipe.path) if recipe.path is not None else None
 
 
 def _error_result(name: str, recipe: Recipe, reason: str, timings: dict[str, float], capture: Capture | None = None) -> InspectionResult:
@@ -131,22 +154,27 @@ def _error_result(name: str, recipe: Recipe, reason: str, timings: dict[str, flo
         timings_s=timings,
         rig=capture.rig if capture is not None else None,
         metadata=dict(capture.metadata) if capture is not None else {},
+        recipe_path=_path(recipe),
+        recipe_sha256=recipe.sha256,
     )
 
 
 def run_batch(
     recipe: Recipe,
     acquisitions: Iterable[Acquisition],
-    pm: Any,
+    pm: PluginManager,
     *,
     reference: Reference | None,
     outdir: Path | None = None,
     progress: Callable[[str], None] | None = None,
+    should_abort: Callable[[], bool] | None = None,
 ) -> Iterator[Outcome]:
     """Inspect every acquisition in this process; yield one :class:`Outcome` each.
 
     Outputs are written (when ``outdir`` is given) and ``inspector_on_result`` is called
-    before each outcome is yielded, so nothing is lost if a later capture fails.
+    before each outcome is yielded, so nothing is lost if a later capture fails. An aborted
+    capture (``should_abort``) is yielded unwritten and ends the batch: the acquisition
+    iterator is not resumed, so a hot folder keeps that capture in its inbox.
     """
     from inspector import outputs
 
@@ -160,7 +188,11 @@ def run_batch(
             reason = f"internal error reading capture: {type(exc).__name__}: {' '.join(str(exc).split())}"
             outcome = Outcome(_error_result(acq.name, recipe, reason, {"total": time.perf_counter() - t0}), None, traceback.format_exc())
         else:
-            outcome = inspect_capture(capture, recipe, reference, pm, load_s=time.perf_counter() - t0)
+            outcome = inspect_capture(capture, recipe, reference, pm, load_s=time.perf_counter() - t0,
+                                      should_abort=should_abort)
+        if outcome.result.verdict == ABORTED:
+            yield outcome
+            return
         folder = None
         if outdir is not None:
             folder = outputs.write_result(outcome.result, Path(outdir), trace=outcome.trace)

@@ -24,7 +24,7 @@ from inspector import hookimpl
 from inspector.errors import InputError
 from inspector.model import InspectionResult
 
-__all__ = ["HISTORY_FILE", "SCHEMA", "record", "read_history"]
+__all__ = ["HISTORY_FILE", "SCHEMA", "record", "read_history", "draw_history", "plot_history"]
 
 #: The history database, in the run's OUTDIR (beside the result folders).
 HISTORY_FILE = "history.sqlite"
@@ -163,18 +163,34 @@ def add_parser(subparsers) -> None:
 
 
 def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
-    """A trend picture of ``rows`` (:func:`read_history`): per inspection, in order, the range
-    of its BCPS deviations (mm) as a bar, green for a pass and red for a fail, its worst
-    defect as a dot, errors as grey marks on the zero line, and the tolerance band."""
+    """A trend picture of ``rows`` (:func:`read_history`), drawn by :func:`draw_history`,
+    written to ``out`` (PNG)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(12, 4.5), dpi=110)
-    colour = {"pass": "#2e8b2e", "fail": "#c01010", "error": "#888888"}
+    draw_history(ax, rows)
+    fig.tight_layout()
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+#: Verdict colours of the trend (the GUI's history strip uses the same).
+VERDICT_COLOURS = {"pass": "#2e8b2e", "fail": "#c01010", "error": "#888888"}
+
+
+def draw_history(ax: Any, rows: list[dict[str, Any]], *, labels: bool = True) -> str:
+    """Draw the trend of ``rows`` on the matplotlib axes ``ax``: per inspection, in order, the
+    range of its BCPS deviations (mm) as a bar, green for a pass and red for a fail, its
+    worst defect as a dot, errors as grey marks on the zero line, and the tolerance band.
+    Returns the title (counts and yield). ``inspector history --plot`` and the GUI's history
+    strip both draw with this function, so they show the same data and limits."""
+    colour = VERDICT_COLOURS
     for k, r in enumerate(rows):
-        c = colour[r["verdict"]]
+        c = colour.get(r["verdict"], "#888888")
         if r["verdict"] == "error" or r["deviation_min_mm"] is None:
             ax.plot([k], [0.0], marker="x", color=c, ms=7, mew=2)
             continue
@@ -190,18 +206,17 @@ def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
         ax.step(x, hi, where="mid", color="k", ls="--", lw=1)
         ax.legend(loc="upper right", fontsize=8)
     ax.axhline(0.0, color="#cccccc", lw=0.8, zorder=0)
-    ax.set_xlabel("inspection (oldest first)")
-    ax.set_ylabel("BCPS deviation, mm (negative: missing)")
+    if labels:
+        ax.set_xlabel("inspection (oldest first)")
+        ax.set_ylabel("BCPS deviation, mm (negative: missing)")
     n = {v: sum(r["verdict"] == v for r in rows) for v in colour}
     judged = n["pass"] + n["fail"]
     yld = f"yield {n['pass'] / judged:.1%}" if judged else "no part judged"
-    ax.set_title(f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}", fontsize=11)
-    if len(rows) <= 30:
+    title = f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}"
+    ax.set_title(title, fontsize=11 if labels else 9)
+    if labels and len(rows) <= 30:
         ax.set_xticks(range(len(rows)), [r["capture"][:14] for r in rows], rotation=60, ha="right", fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
-    return out
+    return title
 
 
 def _fmt(x: Any, spec: str) -> str:

@@ -24,6 +24,7 @@ class SimParams:
     scale: float = param(1.0, "scale of the true part about its centre (1.0: as the reference)", min=0.5, max=2.0)
     bumps: tuple[dict, ...] = param((), "explicit bumps: tables {at = [x, y, z], radius_mm = r, kind = 'add'|'remove'} in the part's frame")
     random_bumps: int = param(0, "number of random bumps on the surface", min=0)
+    defect_every: int = param(0, "only every Nth capture (the Nth, 2Nth, ...) gets the bumps, a good part in between (0: every capture)", min=0)
     bump_radius_mm: float = param(3.0, "largest random bump radius, mm", min=0.1, max=10.0)
     bump_kind: Literal["add", "remove", "any"] = param("any", "kind of the random bumps")
     pose: Literal["random", "identity"] = param("random", "orientation of the part (a falling part is never upright)")
@@ -84,7 +85,7 @@ def random_pose(rng: np.random.Generator, offset_mm: float, random_rotation: boo
     return T
 
 
-def _true_part(p: SimParams, rng: np.random.Generator) -> tuple[Any, list[dict[str, Any]]]:
+def _true_part(p: SimParams, rng: np.random.Generator, index: int = 0) -> tuple[Any, list[dict[str, Any]]]:
     from inspector.errors import ReferenceMeshError
     from inspector.parts import Bump, apply_defects, load_reference, part_names, random_bumps
 
@@ -96,7 +97,9 @@ def _true_part(p: SimParams, rng: np.random.Generator) -> tuple[Any, list[dict[s
     except ReferenceMeshError as e:
         raise RecipeError(f"sim: part: {e}") from None
     bumps = [Bump(tuple(b["at"]), float(b["radius_mm"]), b.get("kind", "remove")) for b in p.bumps]
-    if p.random_bumps:
+    if p.defect_every and (index + 1) % p.defect_every:
+        bumps = []  # a good part between two defective ones
+    elif p.random_bumps:
         kind = None if p.bump_kind == "any" else p.bump_kind
         bumps += list(
             random_bumps(mesh, p.random_bumps, max_radius_mm=p.bump_radius_mm, min_radius_mm=min(0.5, p.bump_radius_mm), kind=kind, rng=rng)
@@ -119,7 +122,7 @@ def simulate(p: SimParams, index: int = 0, rig: Rig | None = None, *, name: str 
 
     rig = rig if rig is not None else sim_rig(p)
     rng = np.random.default_rng(p.seed + index)
-    true, bumps = _true_part(p, rng)
+    true, bumps = _true_part(p, rng, index)
     pose = random_pose(rng, p.offset_mm, p.pose == "random")
     world = true.copy()
     world.apply_transform(pose)

@@ -88,11 +88,31 @@ def test_duplicate_and_bad_kind_rejected():
 def test_import_inspector_is_light():
     code = (
         "import sys, inspector, inspector.manager, inspector.recipe, inspector.runner, inspector.cli\n"
-        "heavy = [m for m in ('PySide6', 'PyQt5', 'PyQt6', 'vtk', 'pyvista', 'harvesters', 'gi', 'open3d', 'cv2', 'trimesh') if m in sys.modules]\n"
+        "import inspector.session, inspector.roles, inspector.recipe_form, inspector.gui, inspector.report, inspector.bench\n"
+        "heavy = [m for m in ('PySide6', 'PyQt5', 'PyQt6', 'vtk', 'pyvista', 'pyvistaqt', 'harvesters', 'gi', 'open3d', 'cv2', 'trimesh') if m in sys.modules]\n"
         "print(','.join(heavy))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", f"import inspector pulled in: {out.stdout.strip()}"
+
+
+def test_only_the_gui_package_imports_qt_or_vtk():
+    """The core, the CLI, the plugins and the drivers never import Qt, pyvista or VTK: an
+    ``inspector run`` and every plugin load without them (read from the sources)."""
+    import ast
+
+    root = Path(__file__).parents[2]
+    banned = {"PySide6", "PyQt5", "PyQt6", "pyvista", "pyvistaqt", "vtk", "vtkmodules", "qtpy"}
+    offenders = []
+    for folder in ("inspector", "plugins", "drivers"):
+        for path in (root / folder).rglob("*.py"):
+            if "gui" in path.relative_to(root).parts:
+                continue
+            for node in ast.walk(ast.parse(path.read_text())):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else (
+                    [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+                offenders += [f"{path.relative_to(root)}: {n}" for n in names if n.split(".")[0] in banned]
+    assert not offenders, offenders
 
 
 def test_third_party_driver_registers_like_a_builtin():

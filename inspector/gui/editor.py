@@ -1,0 +1,218 @@
+"""The engineer's dialogs: log in, and the recipe editor.
+
+The editor is a form generated from the stages' and the driver's parameter dataclasses
+(:mod:`inspector.recipe_form`: doc, default, min/max, choices) and validated by the same
+code as ``inspector recipe check``; it saves a NEW recipe file, never the one it opened.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import Qt
+from PySide6.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QDialog,
+    QDialogButtonBox,
+    QDoubleSpinBox,
+    QFormLayout,
+    QGroupBox,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QPushButton,
+    QScrollArea,
+    QSpinBox,
+    QVBoxLayout,
+    QWidget,
+)
+
+from inspector.recipe_form import Field, RecipeForm, form_for, save_new, validate
+
+__all__ = ["LoginDialog", "RecipeEditor"]
+
+_BIG = 1e12  # a spin box needs finite bounds
+
+
+class LoginDialog(QDialog):
+    """Name and password of an engineer."""
+
+    def __init__(self, parent: QWidget | None = None, problem: str | None = None) -> None:
+        super().__init__(parent)
+        self.setWindowTitle("Engineer login")
+        self.who = QLineEdit()
+        self.who.setObjectName("who")
+        self.password = QLineEdit()
+        self.password.setObjectName("password")
+        self.password.setEchoMode(QLineEdit.EchoMode.Password)
+        form = QFormLayout()
+        form.addRow("Name", self.who)
+        form.addRow("Password", self.password)
+        self.message = QLabel(problem or "")
+        self.message.setWordWrap(True)
+        self.message.setStyleSheet("color: #b3141b; font-weight: bold;")
+        buttons = QDialogButtonBox(QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel)
+        buttons.accepted.connect(self.accept)
+        buttons.rejected.connect(self.reject)
+        lay = QVBoxLayout(self)
+        lay.addLayout(form)
+        lay.addWidget(self.message)
+        lay.addWidget(buttons)
+        self.setStyleSheet("QLineEdit { min-height: 36px; font-size: 14pt; } QPushButton { min-height: 40px; min-width: 110px; }")
+
+
+def _parse(text: str) -> Any:
+    """A list or table typed as TOML (``[1, 2]``, ``{ a = 1 }``) or JSON."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return json.loads(text)
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, (list, tuple, dict)):
+        return json.dumps(value)
+    return "" if value is None else str(value)
+
+
+class RecipeEditor(QDialog):
+    """Every parameter of the recipe as a form; Check and Save as new.
+
+    After ``exec()`` returns Accepted, :attr:`saved` is the new recipe file.
+    """
+
+    def __init__(self, recipe: Path, pm: Any, save_dir: Path, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.pm = pm
+        self.save_dir = Path(save_dir)
+        self.form: RecipeForm = form_for(recipe, pm)
+        self.saved: Path | None = None
+        self.setWindowTitle(f"Recipe editor: {self.form.name} ({Path(recipe).name})")
+        self.resize(900, 760)
+        self.editors: dict[tuple[str, str], QWidget] = {}
+        body = QWidget()
+        col = QVBoxLayout(body)
+        for sec in self.form.sections:
+            box = QGroupBox(sec.title + (f"  ({sec.use})" if sec.use else ""))
+            box.setToolTip(sec.doc)
+            lay = QFormLayout(box)
+            for f in sec.fields:
+                w = self._editor(f)
+                w.setObjectName(f"{sec.key}.{f.name}")
+                w.setToolTip(f"{f.doc}\ntype {f.type}; default {f.default!r}"
+                             + (f"; min {f.min}" if f.min is not None else "") + (f"; max {f.max}" if f.max is not None else ""))
+                self.editors[(sec.key, f.name)] = w
+                label = QLabel(f.name + ("" if not f.explicit else " \u25cf"))
+                label.setToolTip(f.doc)
+                lay.addRow(label, w)
+            col.addWidget(box)
+        col.addStretch(1)
+        scroll = QScrollArea()
+        scroll.setWidgetResizable(True)
+        scroll.setWidget(body)
+        self.name = QLineEdit(f"{self.form.name}-edited")
+        self.name.setObjectName("recipe-name")
+        self.status = QLabel("Values marked \u25cf are set by the recipe; the others are defaults.")
+        self.status.setWordWrap(True)
+        check = QPushButton("Check")
+        check.clicked.connect(self.check)
+        save = QPushButton("Save as new recipe")
+        save.setObjectName("save")
+        save.clicked.connect(self.save)
+        cancel = QPushButton("Cancel")
+        cancel.clicked.connect(self.reject)
+        row = QHBoxLayout()
+        row.addWidget(QLabel("New recipe name"))
+        row.addWidget(self.name, 1)
+        row.addWidget(check)
+        row.addWidget(save)
+        row.addWidget(cancel)
+        lay = QVBoxLayout(self)
+        lay.addWidget(scroll, 1)
+        lay.addWidget(self.status)
+        lay.addLayout(row)
+        self.setStyleSheet("QPushButton { min-height: 40px; min-width: 110px; font-size: 12pt; }")
+
+    def _editor(self, f: Field) -> QWidget:
+        if f.kind == "bool":
+            w = QCheckBox()
+            w.setChecked(bool(f.value))
+        elif f.kind == "choice" and f.choices:
+            w = QComboBox()
+            for c in f.choices:
+                w.addItem(str(c), c)
+            w.setCurrentIndex(max(0, list(f.choices).index(f.value)) if f.value in f.choices else 0)
+        elif f.kind == "int" and f.value is not None:
+            w = QSpinBox()
+            w.setRange(int(max(f.min, -2**31)) if f.min is not None else -2**31, int(min(f.max, 2**31 - 1)) if f.max is not None else 2**31 - 1)
+            w.setValue(int(f.value))
+        elif f.kind == "float" and f.value is not None:
+            w = QDoubleSpinBox()
+            w.setDecimals(4)
+            # The loader judges the range (one line, the same as recipe check): the box
+            # lets any number through so its message, not a silent clamp, answers.
+            w.setRange(-_BIG, _BIG)
+            w.setValue(float(f.value))
+        else:
+            w = QLineEdit(_show(f.value))
+        w.setMinimumHeight(34)
+        return w
+
+    def _read(self, sec: str, f: Field) -> Any:
+        w = self.editors[(sec, f.name)]
+        if isinstance(w, QCheckBox):
+            return w.isChecked()
+        if isinstance(w, QComboBox):
+            return w.currentData()
+        if isinstance(w, (QSpinBox, QDoubleSpinBox)):
+            return w.value()
+        text = w.text().strip()
+        if f.kind in ("list", "table", "any") and text:
+            return _parse(text)
+        if text == "" and f.optional:
+            return None
+        if f.kind == "int":
+            return int(text)
+        if f.kind == "float":
+            return float(text)
+        return text
+
+    def edited(self) -> RecipeForm:
+        """The form with every widget's value (only changed values become explicit)."""
+        form = self.form
+        for sec in self.form.sections:
+            for f in sec.fields:
+                try:
+                    v = self._read(sec.key, f)
+                except (ValueError, json.JSONDecodeError) as e:
+                    raise ValueError(f"{sec.key}.{f.name}: cannot read {type(e).__name__}: {e}") from None
+                if v != f.value:
+                    form = form.with_value(sec.key, f.name, v) if v is not None else form.with_default(sec.key, f.name)
+        return form
+
+    def check(self) -> str | None:
+        """Validate with the recipe loader; the error line (None: valid), also shown."""
+        try:
+            problem = validate(self.edited(), self.pm, path=self.save_dir / "check.toml", name=self.name.text().strip() or None)
+        except ValueError as e:
+            problem = str(e)
+        self.status.setText(problem or "Valid: `inspector recipe check` accepts it.")
+        self.status.setStyleSheet("color: #b3141b; font-weight: bold;" if problem else "color: #1b7f3b; font-weight: bold;")
+        return problem
+
+    def save(self) -> None:
+        if self.check() is not None:
+            return
+        from inspector.errors import RecipeError
+
+        try:
+            self.saved = save_new(self.edited(), self.save_dir, self.pm, name=self.name.text().strip() or None)
+        except (RecipeError, OSError, ValueError) as e:
+            self.status.setText(str(e))
+            self.status.setStyleSheet("color: #b3141b; font-weight: bold;")
+            return
+        self.accept()

@@ -1,0 +1,415 @@
+"""The operator screen's 2D widgets: verdict banner, defect table, camera strip (and the
+large camera view), history strip. They draw a :class:`~inspector.gui.viewmodel.ResultView`
+or history rows; none of them runs anything.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from PySide6.QtCore import QPointF, QRectF, QSize, Qt, Signal
+from PySide6.QtGui import QColor, QImage, QKeySequence, QPainter, QPainterPath, QPen, QPixmap, QShortcut
+from PySide6.QtWidgets import (
+    QAbstractItemView,
+    QDialog,
+    QFrame,
+    QGraphicsPathItem,
+    QGraphicsPixmapItem,
+    QGraphicsScene,
+    QGraphicsView,
+    QGridLayout,
+    QHBoxLayout,
+    QHeaderView,
+    QLabel,
+    QPushButton,
+    QSizePolicy,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from inspector.gui.viewmodel import CameraThumb, ResultView
+
+__all__ = ["VERDICT_STYLE", "VerdictBanner", "DefectTable", "CameraStrip", "CameraDialog", "HistoryStrip"]
+
+#: Verdict -> (word, icon glyph, background). The word and the glyph say it without colour.
+VERDICT_STYLE: dict[str, tuple[str, str, str]] = {
+    "pass": ("PASS", "\u2714", "#1b7f3b"),
+    "fail": ("FAIL", "\u2716", "#b3141b"),
+    "error": ("ERROR", "\u26a0", "#b86e00"),
+    "aborted": ("ABORTED", "\u25a0", "#5f6368"),
+    "busy": ("INSPECTING", "\u25f7", "#1557a0"),
+    "ready": ("READY", "\u25cb", "#37474f"),
+    "invalid": ("RECIPE INVALID", "\u26a0", "#6d4c41"),
+}
+
+
+def _qimage(gray: np.ndarray) -> QImage:
+    """A QImage sharing nothing with ``gray`` ((h, w) uint8): Qt keeps its own copy."""
+    a = np.ascontiguousarray(gray, np.uint8)
+    h, w = a.shape
+    return QImage(a.data, w, h, w, QImage.Format.Format_Grayscale8).copy()
+
+
+def _points_path(uv: np.ndarray, scale: float, gap_px: float = 2.5) -> QPainterPath:
+    """Contour points as a path: consecutive points closer than ``gap_px`` are joined."""
+    path = QPainterPath()
+    if not len(uv):
+        return path
+    # Pixel (0, 0) is the centre of the top-left pixel (CONTRACT); in a QImage it spans [0, 1].
+    p = (np.asarray(uv, float) + 0.5) * scale
+    jump = np.r_[True, np.hypot(*(np.diff(np.asarray(uv, float), axis=0).T)) > gap_px]
+    # Python floats: PySide6 mis-counts references of numpy scalars passed to Qt (measured:
+    # a 'deallocating None' abort when the interpreter exits).
+    for (x, y), new in zip(p.tolist(), jump.tolist(), strict=True):
+        if new:
+            path.moveTo(x, y)
+        else:
+            path.lineTo(x, y)
+    return path
+
+
+class VerdictBanner(QFrame):
+    """PASS / FAIL / ERROR / ABORTED in words and an icon, the part, the cycle time and,
+    for a FAIL, the reason in words (worst region, deviation, limit)."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("verdictBanner")
+        self.icon = QLabel()
+        self.word = QLabel()
+        self.detail = QLabel()
+        self.reason = QLabel()
+        self.reason.setWordWrap(True)
+        # Sizes in the style sheet: a window's style sheet would override set fonts.
+        self.icon.setObjectName("verdictIcon")
+        self.word.setObjectName("verdictWord")
+        self.reason.setObjectName("verdictReason")
+        top = QHBoxLayout()
+        top.addWidget(self.icon)
+        top.addWidget(self.word)
+        top.addStretch(1)
+        lay = QVBoxLayout(self)
+        lay.setContentsMargins(16, 8, 16, 8)
+        lay.addLayout(top)
+        lay.addWidget(self.detail)
+        lay.addWidget(self.reason)
+        self.state = ""
+        self.compact = False
+        self._lay = lay
+        self.set_state("ready", "Press INSPECT (Space) to inspect the next part.")
+
+    def set_compact(self, compact: bool) -> None:
+        """Smaller type for small screens (1366x768): the banner must leave room for the part."""
+        if compact != self.compact:
+            self.compact = compact
+            self._lay.setContentsMargins(12, 2 if compact else 8, 12, 2 if compact else 8)
+            self._lay.setSpacing(0 if compact else 6)
+            self._style()
+
+    def set_state(self, state: str, detail: str = "", reason: str = "") -> None:
+        word, glyph, bg = VERDICT_STYLE[state]
+        self.state = state
+        self.icon.setText(glyph)
+        self.word.setText(word)
+        self.detail.setText(detail)
+        self.reason.setText(reason)
+        self.reason.setVisible(bool(reason))
+        self._bg = bg
+        self._style()
+        self.setAccessibleName(f"verdict {word}")
+
+    def _style(self) -> None:
+        big, text, reason = (28, 13, 14) if self.compact else (40, 15, 17)
+        self.setStyleSheet(f"#verdictBanner {{ background: {self._bg}; border-radius: 6px; }}"
+                           f" QLabel {{ color: white; font-size: {text}pt; }}"
+                           f" #verdictWord, #verdictIcon {{ font-size: {big}pt; font-weight: bold; }}"
+                           f" #verdictReason {{ font-size: {reason}pt; font-weight: bold; }}")
+
+    def show_result(self, view: ResultView) -> None:
+        bits = [f"part {view.part_id}" if view.part_id else None, f"capture {view.capture}",
+                f"cycle {view.cycle_s:.2f} s" if view.cycle_s is not None else None]
+        if view.verdict in ("pass", "fail") and view.stats.get("deviation_mm"):
+            d = view.stats["deviation_mm"]
+            bits.append(f"deviation {d['min']:+.3f} to {d['max']:+.3f} mm (limits {view.tolerance[0]:+.2f} / {view.tolerance[1]:+.2f})")
+        self.set_state(view.verdict if view.verdict in VERDICT_STYLE else "error",
+                       "   \u00b7   ".join(b for b in bits if b), view.reason)
+
+
+class DefectTable(QTableWidget):
+    """One row per defect cluster; selecting a row emits ``defect_selected(row index)``."""
+
+    defect_selected = Signal(int)
+    HEADERS = ("#", "kind", "region", "points", "worst mm", "extent mm", "cameras")
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(0, len(self.HEADERS), parent)
+        self.setHorizontalHeaderLabels(list(self.HEADERS))
+        self.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+        self.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.verticalHeader().setVisible(False)
+        self.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        self.horizontalHeader().setStretchLastSection(True)
+        self.verticalHeader().setDefaultSectionSize(34)  # touch-size rows
+        self.setAccessibleName("defect table")
+        self.itemSelectionChanged.connect(self._selected)
+        self._rows: tuple = ()
+
+    def show_result(self, view: ResultView) -> None:
+        self.blockSignals(True)
+        self.clearSelection()
+        self._rows = view.defects
+        self.setRowCount(len(view.defects))
+        for r, d in enumerate(view.defects):
+            kind = "missing material" if d.kind == "missing" else "excess material"
+            values = (str(d.number), kind, d.region, str(d.n_points), f"{d.worst_mm:+.3f}",
+                      " x ".join(f"{e:.1f}" for e in d.extent), ", ".join(d.cameras) or "-")
+            for c, v in enumerate(values):
+                item = QTableWidgetItem(v)
+                if c in (0, 3, 4):
+                    item.setTextAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
+                item.setToolTip(v)
+                self.setItem(r, c, item)
+        self.setCurrentCell(-1, -1)  # so Down (keyboard) selects the first, worst, defect
+        self.blockSignals(False)
+
+    def _selected(self) -> None:
+        rows = self.selectionModel().selectedRows()
+        if rows:
+            self.defect_selected.emit(rows[0].row())
+
+
+class CameraTile(QLabel):
+    """A camera thumbnail with its sub-pixel contour; a thick amber frame and a warning sign
+    when flagged, a blue frame when it produced the selected defect."""
+
+    opened = Signal(str)
+
+    def __init__(self, thumb: CameraThumb, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.thumb = thumb
+        self.highlighted = False
+        self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
+        self.setMinimumSize(56, 56)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        tip = thumb.name + ("\n" + "\n".join(thumb.flags) if thumb.flags else "")
+        self.setToolTip(tip + "\n(double-click or Enter: open large)")
+        self.setAccessibleName(f"camera {thumb.name}" + (" flagged" if thumb.flags else ""))
+        self._pixmap = self._render()
+
+    def _render(self) -> QPixmap:
+        t = self.thumb
+        pm = QPixmap.fromImage(_qimage(t.image).convertToFormat(QImage.Format.Format_RGB32))
+        painter = QPainter(pm)
+        painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+        painter.setPen(QPen(QColor("#00e676"), 1.2))
+        painter.drawPath(_points_path(t.contour - t.origin, t.scale))
+        painter.end()
+        return pm
+
+    def set_highlighted(self, on: bool) -> None:
+        self.highlighted = on
+        self.update()
+
+    def paintEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        p = QPainter(self)
+        r = self.rect()
+        scaled = self._pixmap.scaled(r.size() - QSize(6, 6), Qt.AspectRatioMode.KeepAspectRatio,
+                                     Qt.TransformationMode.SmoothTransformation)
+        x = (r.width() - scaled.width()) // 2
+        y = (r.height() - scaled.height()) // 2
+        p.drawPixmap(x, y, scaled)
+        frame = "#1e88e5" if self.highlighted else ("#ffab00" if self.thumb.flags else ("#ffffff" if self.hasFocus() else "#455a64"))
+        width = 5 if (self.highlighted or self.thumb.flags) else 2
+        p.setPen(QPen(QColor(frame), width))
+        p.drawRect(r.adjusted(width // 2, width // 2, -(width + 1) // 2, -(width + 1) // 2))
+        p.setPen(QColor("white"))
+        f = p.font()
+        f.setPointSize(10)
+        f.setBold(True)
+        p.setFont(f)
+        label = self.thumb.name + ("  \u26a0" if self.thumb.flags else "")
+        p.fillRect(QRectF(6, 6, p.fontMetrics().horizontalAdvance(label) + 8, p.fontMetrics().height() + 2), QColor(0, 0, 0, 150))
+        p.drawText(QPointF(10, 6 + p.fontMetrics().ascent()), label)
+        p.end()
+
+    def mouseDoubleClickEvent(self, event: Any) -> None:  # noqa: N802
+        self.opened.emit(self.thumb.name)
+
+    def keyPressEvent(self, event: Any) -> None:  # noqa: N802
+        if event.key() in (Qt.Key.Key_Return, Qt.Key.Key_Enter):
+            self.opened.emit(self.thumb.name)
+        else:
+            super().keyPressEvent(event)
+
+
+class CameraStrip(QWidget):
+    """The rig's cameras in a grid; ``opened(name)`` on a double-click or Enter."""
+
+    opened = Signal(str)
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.grid = QGridLayout(self)
+        self.grid.setSpacing(4)
+        self.grid.setContentsMargins(0, 0, 0, 0)
+        self.tiles: dict[str, CameraTile] = {}
+        self.placeholder = QLabel("Camera images appear here after an inspection.")
+        self.placeholder.setAlignment(Qt.AlignmentFlag.AlignCenter)
+        self.grid.addWidget(self.placeholder, 0, 0)
+
+    def show_result(self, view: ResultView) -> None:
+        for tile in self.tiles.values():
+            self.grid.removeWidget(tile)
+            tile.deleteLater()
+        self.tiles = {}
+        self.placeholder.setVisible(not view.cameras)
+        if not view.cameras:
+            self.placeholder.setText("No camera images: this result was opened from its folder."
+                                     if view.folder is not None and view.verdict != "aborted" else
+                                     "Camera images appear here after an inspection.")
+        cols = max(1, int(np.ceil(np.sqrt(len(view.cameras)))))
+        for k, thumb in enumerate(view.cameras):
+            tile = CameraTile(thumb, self)
+            tile.opened.connect(self.opened)
+            self.grid.addWidget(tile, 1 + k // cols, k % cols)
+            self.tiles[thumb.name] = tile
+
+    def highlight(self, names: tuple[str, ...] | list[str]) -> None:
+        for n, tile in self.tiles.items():
+            tile.set_highlighted(n in names)
+
+    def flagged(self) -> list[str]:
+        return [n for n, t in self.tiles.items() if t.thumb.flags]
+
+
+class _ZoomView(QGraphicsView):
+    def wheelEvent(self, event: Any) -> None:  # noqa: N802
+        f = 1.25 if event.angleDelta().y() > 0 else 0.8
+        self.scale(f, f)
+
+
+class CameraDialog(QDialog):
+    """One camera large: the full image, its sub-pixel contour, zoom with the wheel or + / -
+    and 0 to fit; its flags in words."""
+
+    def __init__(self, thumb: CameraThumb, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setWindowTitle(f"Camera {thumb.name}")
+        self.resize(900, 860)
+        image = thumb.full if thumb.full is not None else thumb.image
+        scale = 1.0 if thumb.full is not None else thumb.scale
+        origin = 0.0 if thumb.full is not None else thumb.origin
+        scene = QGraphicsScene(self)
+        scene.addItem(QGraphicsPixmapItem(QPixmap.fromImage(_qimage(image))))
+        path = _points_path(thumb.contour - origin, scale)
+        item = QGraphicsPathItem(path)
+        pen = QPen(QColor("#00e676"), 0)  # cosmetic: one screen pixel at any zoom
+        item.setPen(pen)
+        scene.addItem(item)
+        self.view = _ZoomView(scene)
+        self.view.setRenderHint(QPainter.RenderHint.Antialiasing)
+        self.view.setDragMode(QGraphicsView.DragMode.ScrollHandDrag)
+        info = QLabel("\n".join(thumb.flags) if thumb.flags else "silhouette consistent with the other cameras")
+        info.setWordWrap(True)
+        info.setStyleSheet("font-size: 14pt;" + (" color: #b86e00; font-weight: bold;" if thumb.flags else ""))
+        fit = QPushButton("Fit (0)")
+        fit.setMinimumHeight(44)
+        fit.clicked.connect(self.fit)
+        close = QPushButton("Close (Esc)")
+        close.setMinimumHeight(44)
+        close.clicked.connect(self.accept)
+        row = QHBoxLayout()
+        row.addWidget(info, 1)
+        row.addWidget(fit)
+        row.addWidget(close)
+        lay = QVBoxLayout(self)
+        lay.addWidget(self.view, 1)
+        lay.addLayout(row)
+        for key, f in (("+", 1.25), ("=", 1.25), ("-", 0.8)):
+            QShortcut(QKeySequence(key), self, activated=lambda f=f: self.view.scale(f, f))
+        QShortcut(QKeySequence("0"), self, activated=self.fit)
+
+    def fit(self) -> None:
+        self.view.fitInView(self.view.scene().itemsBoundingRect(), Qt.AspectRatioMode.KeepAspectRatio)
+
+    def showEvent(self, event: Any) -> None:  # noqa: N802
+        super().showEvent(event)
+        self.fit()
+
+
+class HistoryStrip(QWidget):
+    """The last parts as verdict chips (word and colour), the yield, and the trend chart of
+    ``inspector history --plot`` (same rows, same drawing function, same limits)."""
+
+    CHIPS = 24
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
+        from matplotlib.figure import Figure
+
+        self.figure = Figure(figsize=(8, 1.9), dpi=90)
+        self.canvas = FigureCanvasQTAgg(self.figure)
+        self.canvas.setMinimumHeight(100)
+        self.canvas.setMaximumHeight(170)
+        self.chips = QHBoxLayout()
+        self.chips.setSpacing(3)
+        self.yield_label = QLabel("no inspection yet")
+        self.yield_label.setStyleSheet("font-size: 14pt; font-weight: bold;")
+        left = QVBoxLayout()
+        left.addWidget(self.yield_label)
+        left.addLayout(self.chips)
+        left.addStretch(1)
+        lay = QHBoxLayout(self)
+        lay.setContentsMargins(0, 0, 0, 0)
+        lay.addLayout(left, 2)
+        lay.addWidget(self.canvas, 3)
+        self.rows: list[dict[str, Any]] = []
+
+    def refresh(self, outdir: Path | None) -> None:
+        """Re-read ``outdir/history.sqlite`` (nothing when there is none yet)."""
+        from inspector.errors import InputError
+        from inspector_plugins.history import read_history
+
+        rows: list[dict[str, Any]] = []
+        if outdir is not None:
+            try:
+                rows = read_history(outdir, last=50)
+            except InputError:
+                rows = []
+        self.show_rows(rows)
+
+    def show_rows(self, rows: list[dict[str, Any]]) -> None:
+        from inspector_plugins.history import draw_history
+
+        self.rows = rows
+        while self.chips.count():
+            w = self.chips.takeAt(0).widget()
+            if w is not None:
+                w.deleteLater()
+        for r in rows[-self.CHIPS:]:
+            word, glyph, bg = VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])
+            chip = QLabel(glyph)
+            chip.setAlignment(Qt.AlignmentFlag.AlignCenter)
+            chip.setFixedSize(26, 34)
+            chip.setToolTip(f"{r['capture']}: {word}" + (f", worst {r['worst_mm']:+.3f} mm" if r.get("worst_mm") is not None else ""))
+            chip.setStyleSheet(f"background: {bg}; color: white; font-size: 13pt; border-radius: 3px;")
+            self.chips.addWidget(chip)
+        self.chips.addStretch(1)
+        n = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "fail", "error")}
+        judged = n["pass"] + n["fail"]
+        self.yield_label.setText(
+            f"yield {n['pass'] / judged:.1%}  ({n['pass']} pass, {n['fail']} fail, {n['error']} error)" if judged
+            else ("no part judged yet" if not rows else f"{n['error']} error"))
+        self.figure.clear()
+        ax = self.figure.add_subplot(111)
+        if rows:
+            draw_history(ax, rows, labels=False)
+        ax.tick_params(labelsize=7)
+        self.figure.subplots_adjust(left=0.08, right=0.99, top=0.85, bottom=0.12)
+        self.canvas.draw_idle()

@@ -1,0 +1,515 @@
+"""The operator screen: one window over one :class:`~inspector.session.Session`.
+
+Layout: the verdict banner and the big buttons on top; the 3D deviation view on the left;
+the defect table and the camera strip on the right; the history strip at the bottom; the
+recipe, the role and the stage progress in the status bar. Keyboard: Space or F5 INSPECT,
+F6 LIVE, Esc CANCEL, Ctrl+O open a capture, Ctrl+Shift+O open a result, Ctrl+E export the
+report, Ctrl+L engineer login, Ctrl+R choose a recipe and Ctrl+Shift+E edit it (engineer).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from PySide6.QtCore import QEvent, QObject, Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QKeySequence, QShortcut
+from PySide6.QtWidgets import (
+    QDockWidget,
+    QFileDialog,
+    QHBoxLayout,
+    QLabel,
+    QMainWindow,
+    QMessageBox,
+    QPushButton,
+    QSplitter,
+    QVBoxLayout,
+    QWidget,
+)
+
+from inspector.errors import InputError, InspectorError, RecipeError
+from inspector.gui.view3d import DeviationView
+from inspector.gui.viewmodel import ResultView, from_folder
+from inspector.gui.widgets import CameraDialog, CameraStrip, DefectTable, HistoryStrip, VerdictBanner
+from inspector.gui.worker import SessionWorker
+from inspector.manager import PluginManager, create_plugin_manager
+from inspector.roles import ENGINEER, RoleSession
+from inspector.session import Session, Source
+
+__all__ = ["MainWindow"]
+
+STYLE = """
+QWidget { font-size: 12pt; }
+QPushButton#inspect, QPushButton#live, QPushButton#cancel { min-width: 150px; font-size: 18pt; font-weight: bold; }
+QPushButton#inspect { background: #1557a0; color: white; border-radius: 6px; }
+QPushButton#inspect:disabled { background: #9e9e9e; color: #eeeeee; }
+QPushButton#live:checked { background: #2e7d32; color: white; }
+QPushButton { min-height: 44px; }
+QPushButton:focus { border: 3px solid #ffab00; }
+QTableWidget { font-size: 13pt; }
+"""
+
+
+class _Activity(QObject):
+    """Any key or click counts as the engineer still being at the cell."""
+
+    def __init__(self, roles: RoleSession) -> None:
+        super().__init__()
+        self.roles = roles
+
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:  # noqa: N802
+        if event.type() in (QEvent.Type.KeyPress, QEvent.Type.MouseButtonPress, QEvent.Type.Wheel):
+            self.roles.touch()
+        return False
+
+
+class MainWindow(QMainWindow):
+    """The operator's window.
+
+    Parameters
+    ----------
+    recipe : Path
+        Recipe file; an invalid one is shown greyed with its reason and INSPECT is disabled.
+    out : Path
+        Result folder (``history.sqlite`` and the audit table live there).
+    capture, watch : Path, optional
+        A capture folder to inspect with INSPECT, or an inbox for LIVE.
+    idle_logout_s : float
+        Engineer mode falls back to operator after this long without a key or a click.
+    """
+
+    result_shown = Signal(object)
+    run_finished = Signal(object)
+
+    def __init__(self, recipe: Path, out: Path, *, capture: Path | None = None, watch: Path | None = None,
+                 reference: str | None = None, idle_logout_s: float = 300.0, config_dir: Path | None = None,
+                 pm: PluginManager | None = None) -> None:
+        super().__init__()
+        self.setWindowTitle("Inspector: operator")
+        self.setStyleSheet(STYLE)
+        self.out = Path(out)
+        self.capture = Path(capture) if capture else None
+        self.watch = Path(watch) if watch else None
+        self.reference_arg = reference
+        self.pm = pm if pm is not None else create_plugin_manager()
+        self.roles = RoleSession(self.out, idle_s=idle_logout_s, config_dir=config_dir)
+        self.config_dir = config_dir
+        self.session: Session | None = None
+        self.worker: SessionWorker | None = None
+        self.recipe_path = Path(recipe)
+        self.recipe_error: str | None = None
+        self.current_result: ResultView | None = None
+        self.live = False
+        self.plugin_warnings: list[str] = []
+        self._closing = False
+        self._build()
+        self._activity = _Activity(self.roles)
+        from PySide6.QtWidgets import QApplication
+
+        QApplication.instance().installEventFilter(self._activity)
+        self._idle = QTimer(self)
+        self._idle.setInterval(1000)
+        self._idle.timeout.connect(self._check_idle)
+        self._idle.start()
+        self.open_recipe(self.recipe_path, audit=False)
+        self.history.refresh(self.out)
+        self._add_plugin_panels()
+
+    # -- building -----------------------------------------------------------------------------
+    def _build(self) -> None:
+        self.banner = VerdictBanner()
+        self.inspect_button = QPushButton("INSPECT")
+        self.inspect_button.setObjectName("inspect")
+        self.inspect_button.setToolTip("Inspect the next part (Space or F5)")
+        self.inspect_button.clicked.connect(self.inspect)
+        self.live_button = QPushButton("LIVE")
+        self.live_button.setObjectName("live")
+        self.live_button.setCheckable(True)
+        self.live_button.setToolTip("Inspect continuously until stopped (F6)")
+        self.live_button.clicked.connect(self.toggle_live)
+        self.cancel_button = QPushButton("CANCEL")
+        self.cancel_button.setObjectName("cancel")
+        self.cancel_button.setToolTip("Abort the inspection in progress (Esc)")
+        self.cancel_button.clicked.connect(self.cancel)
+        self.cancel_button.setEnabled(False)
+        buttons = QVBoxLayout()
+        for b in (self.inspect_button, self.live_button, self.cancel_button):
+            b.setMinimumHeight(64)
+            buttons.addWidget(b)
+        top = QHBoxLayout()
+        top.addWidget(self.banner, 1)
+        top.addLayout(buttons)
+
+        self.view3d = DeviationView()
+        self.defects = DefectTable()
+        self.defects.defect_selected.connect(self.select_defect)
+        self.cameras = CameraStrip()
+        self.cameras.opened.connect(self.open_camera)
+        right = QSplitter(Qt.Orientation.Vertical)
+        right.addWidget(self.defects)
+        right.addWidget(self.cameras)
+        right.setSizes([220, 520])
+        middle = QSplitter(Qt.Orientation.Horizontal)
+        middle.addWidget(self.view3d)
+        middle.addWidget(right)
+        middle.setSizes([1100, 800])
+        self.history = HistoryStrip()
+
+        central = QWidget()
+        lay = QVBoxLayout(central)
+        lay.setContentsMargins(8, 8, 8, 4)
+        lay.addLayout(top)
+        lay.addWidget(middle, 1)
+        lay.addWidget(self.history)
+        self.setCentralWidget(central)
+
+        self.recipe_label = QLabel()
+        self.role_label = QLabel()
+        self.progress_label = QLabel()
+        sb = self.statusBar()
+        sb.addWidget(self.recipe_label, 2)
+        sb.addWidget(self.progress_label, 2)
+        sb.addPermanentWidget(self.role_label)
+
+        file_menu = self.menuBar().addMenu("&File")
+        self.act_open_capture = self._action(file_menu, "Open capture folder…", "Ctrl+O", self.ask_capture)
+        self.act_open_result = self._action(file_menu, "Open result folder…", "Ctrl+Shift+O", self.ask_result)
+        self.act_export = self._action(file_menu, "Export report (PDF)", "Ctrl+E", self.export_report)
+        file_menu.addSeparator()
+        self._action(file_menu, "Quit", "Ctrl+Q", self.close)
+        role_menu = self.menuBar().addMenu("&Role")
+        self.act_login = self._action(role_menu, "Engineer login…", "Ctrl+L", self.ask_login)
+        self.act_logout = self._action(role_menu, "Back to operator", "Ctrl+Shift+L", self.logout)
+        recipe_menu = self.menuBar().addMenu("Re&cipe")
+        self.act_choose = self._action(recipe_menu, "Choose recipe…", "Ctrl+R", self.ask_recipe)
+        self.act_edit = self._action(recipe_menu, "Edit recipe…", "Ctrl+Shift+E", self.edit_recipe)
+        view_menu = self.menuBar().addMenu("&View")
+        self._action(view_menu, "Reset 3D view", "Home", self.view3d.reset_camera)
+        self.view_menu = view_menu
+
+        for key in ("Space", "F5"):
+            QShortcut(QKeySequence(key), self, activated=self.inspect, context=Qt.ShortcutContext.WindowShortcut)
+        QShortcut(QKeySequence("F6"), self, activated=self.toggle_live_key)
+        QShortcut(QKeySequence("Escape"), self, activated=self.cancel)
+        self._update_role()
+
+    def _action(self, menu: Any, text: str, key: str, slot: Any) -> QAction:
+        act = QAction(text, self)
+        act.setShortcut(QKeySequence(key))
+        act.triggered.connect(slot)
+        menu.addAction(act)
+        self.addAction(act)
+        return act
+
+    def _add_plugin_panels(self) -> None:
+        """Docks from the ``inspector_gui_panel`` hook; a plugin that fails is disabled with
+        a warning naming it, and the GUI goes on."""
+        for name, value in self.pm.gui_panels(self):
+            if isinstance(value, Exception):
+                self._plugin_warning(f"plugin {name!r} disabled: its panel raised {type(value).__name__}: {value}")
+                continue
+            if value is None:
+                continue
+            if not (isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], str) and isinstance(value[1], QWidget)):
+                self._plugin_warning(f"plugin {name!r} disabled: its panel must be (title, QWidget), got {type(value).__name__}")
+                continue
+            dock = QDockWidget(value[0], self)
+            dock.setObjectName(f"plugin-{name}")
+            dock.setWidget(value[1])
+            self.addDockWidget(Qt.DockWidgetArea.RightDockWidgetArea, dock)
+            self.view_menu.addAction(dock.toggleViewAction())
+
+    def _plugin_warning(self, text: str) -> None:
+        self.plugin_warnings.append(text)
+        print(f"inspector: warning: {text}", file=sys.stderr, flush=True)
+        self.progress_label.setText(f"\u26a0 {text}")
+
+    # -- recipe and session -------------------------------------------------------------------
+    def open_recipe(self, path: Path, *, audit: bool = True) -> bool:
+        """Use ``path``; an invalid recipe leaves the screen greyed with its reason."""
+        before = self.recipe_path if audit else None
+        self._close_session()
+        self.recipe_path = Path(path)
+        try:
+            self.session = Session.open(self.recipe_path, self.out, reference=self.reference_arg, pm=self.pm)
+        except InspectorError as e:
+            self.session = None
+            self.recipe_error = str(e)
+        else:
+            self.recipe_error = None
+            self.worker = SessionWorker(self.session, self)
+            self.worker.started.connect(self._on_started)
+            self.worker.stage.connect(self._on_stage)
+            self.worker.result.connect(self.show_result)
+            self.worker.warned.connect(lambda t: self.progress_label.setText(f"\u26a0 warning: {t}"))
+            self.worker.failed.connect(self._on_failed)
+            self.worker.ended.connect(self._on_ended)
+        if audit and before is not None and before != self.recipe_path:
+            self.roles.record_recipe_change(self.roles.user or "?", before, self.recipe_path)
+        self._update_recipe_label()
+        self._update_buttons()
+        return self.recipe_error is None
+
+    def _close_session(self) -> None:
+        if self.worker is not None:
+            self.worker.shutdown()
+            self.worker.deleteLater()
+            self.worker = None
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+    def _update_recipe_label(self) -> None:
+        if self.recipe_error:
+            self.recipe_label.setText(f"recipe {self.recipe_path.name}: INVALID: {self.recipe_error}")
+            self.recipe_label.setStyleSheet("color: #9e9e9e;")
+            self.recipe_label.setToolTip(self.recipe_error)
+            self.banner.set_state("invalid", f"{self.recipe_path}", self.recipe_error)
+        else:
+            s = self.session
+            src = f"capture {self.capture}" if self.capture else (f"watch {self.watch}" if self.watch else f"driver {s.recipe.driver.spec.name}")
+            self.recipe_label.setText(f"recipe {s.recipe.name} ({self.recipe_path.name}, sha256 {s.recipe.sha256[:10]}) \u00b7 {src} \u00b7 results in {self.out}")
+            self.recipe_label.setStyleSheet("")
+            self.recipe_label.setToolTip(str(self.recipe_path))
+
+    def _update_buttons(self) -> None:
+        busy = self.worker is not None and self.worker.busy
+        ok = self.session is not None
+        self.inspect_button.setEnabled(ok and not busy)
+        self.live_button.setEnabled(ok and (not busy or self.live))
+        self.cancel_button.setEnabled(busy)
+        self.act_open_capture.setEnabled(ok and not busy)
+        engineer = self.roles.role == ENGINEER
+        self.act_choose.setEnabled(engineer and not busy)
+        self.act_edit.setEnabled(engineer and not busy and self.recipe_path.is_file())
+        self.act_login.setEnabled(not engineer)
+        self.act_logout.setEnabled(engineer)
+        self.act_export.setEnabled(self.current_result is not None and self.current_result.folder is not None)
+
+    # -- running ------------------------------------------------------------------------------
+    def _source(self, *, continuous: bool) -> Source:
+        if self.capture is not None:
+            return Source(captures=(str(self.capture),), limit=None if continuous else 1)
+        if self.watch is not None:
+            return Source(watch={"folder": str(self.watch)}, limit=None if continuous else 1)
+        return Source(limit=None if continuous else 1)
+
+    def inspect(self) -> bool:
+        """INSPECT: one part from the source; False when nothing could start."""
+        if self.worker is None or self.worker.busy:
+            return False
+        self.live = False
+        started = self.worker.start(self._source(continuous=False))
+        self._update_buttons()
+        return started
+
+    def toggle_live_key(self) -> None:
+        self.live_button.setChecked(not self.live_button.isChecked())
+        self.toggle_live()
+
+    def toggle_live(self) -> None:
+        if self.worker is None:
+            self.live_button.setChecked(False)
+            return
+        if self.live_button.isChecked() and not self.worker.busy:
+            self.live = True
+            self.worker.start(self._source(continuous=True))
+        elif not self.live_button.isChecked() and self.live:
+            self.worker.stop()  # ends after the part in progress
+            self.progress_label.setText("LIVE stopping after the part in progress…")
+        self._update_buttons()
+
+    def cancel(self) -> None:
+        if self.worker is not None and self.worker.busy:
+            self.worker.cancel()
+            self.progress_label.setText("cancelling before the next stage…")
+
+    def _on_started(self, what: str) -> None:
+        self.banner.set_state("busy", f"{'LIVE' if self.live else 'INSPECT'}: {what}")
+        self._update_buttons()
+
+    def _on_stage(self, capture: str, step: str, seconds: float) -> None:
+        if seconds < 0:
+            self.progress_label.setText(f"{capture}: {step} …")
+            if self.banner.state != "busy":
+                self.banner.set_state("busy", f"{capture}: {step} …")
+        else:
+            self.progress_label.setText(f"{capture}: {step} done ({seconds:.2f} s)")
+
+    def _on_failed(self, message: str) -> None:
+        self.banner.set_state("error", "the run could not go on", message)
+        self.progress_label.setText(f"error: {message}")
+
+    def _on_ended(self, summary: Any) -> None:
+        self.live = False
+        self.live_button.setChecked(False)
+        self._update_buttons()
+        if summary is not None and not summary.inspected and not summary.counts.get("aborted"):
+            self.progress_label.setText("no capture arrived" if summary.inbox is not None else "nothing to inspect")
+            if self.banner.state == "busy":
+                self.banner.set_state("ready", "nothing was inspected")
+        self.inspect_button.setFocus()
+        self.run_finished.emit(summary)
+
+    def show_result(self, view: ResultView) -> None:
+        """Draw one result everywhere (on the GUI thread)."""
+        if self._closing:  # a result queued while the window closed: written, not drawn
+            return
+        self.current_result = view
+        self.banner.show_result(view)
+        self.view3d.show_result(view)
+        self.defects.show_result(view)
+        self.cameras.show_result(view)
+        self.history.refresh(self.out)
+        self.progress_label.setText(f"{view.capture}: {view.verdict.upper()}"
+                                    + (f" in {view.cycle_s:.2f} s" if view.cycle_s is not None else ""))
+        self._update_buttons()
+        self.inspect_button.setFocus()
+        self.result_shown.emit(view)
+
+    def select_defect(self, index: int) -> None:
+        v = self.current_result
+        if v is None or not 0 <= index < len(v.defects):
+            return
+        self.view3d.fly_to(index)
+        self.cameras.highlight(v.defects[index].cameras)
+        d = v.defects[index]
+        self.progress_label.setText(f"defect {d.number}: {d.kind} material {d.worst_mm:+.3f} mm, seen by {', '.join(d.cameras) or 'no camera'}")
+
+    def open_camera(self, name: str) -> CameraDialog | None:
+        v = self.current_result
+        thumb = next((t for t in (v.cameras if v else ()) if t.name == name), None)
+        if thumb is None:
+            return None
+        dlg = CameraDialog(thumb, self)
+        dlg.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
+        dlg.open()
+        return dlg
+
+    # -- files --------------------------------------------------------------------------------
+    def ask_capture(self) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Open capture folder")
+        if path:
+            self.open_capture(Path(path))
+
+    def open_capture(self, path: Path) -> None:
+        """INSPECT now reads this capture folder (or folder of captures)."""
+        self.capture, self.watch = Path(path), None
+        self._update_recipe_label()
+        self.inspect()
+
+    def ask_result(self) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Open result folder", str(self.out))
+        if path:
+            self.open_result(Path(path))
+
+    def open_result(self, folder: Path) -> bool:
+        """Show a result folder written earlier, without inspecting again."""
+        try:
+            view = from_folder(folder, self.session.reference if self.session else None)
+        except InputError as e:
+            self.banner.set_state("error", f"cannot open {folder}", str(e))
+            return False
+        self.show_result(view)
+        return True
+
+    def export_report(self) -> Path | None:
+        """report.pdf in the shown result's folder, with the 3D view as its picture."""
+        from inspector.report import render_pdf
+
+        v = self.current_result
+        if v is None or v.folder is None:
+            self.progress_label.setText("no written result to export")
+            return None
+        try:
+            with tempfile.TemporaryDirectory() as tmp:
+                picture = self.view3d.screenshot(Path(tmp) / "view.png") if len(v.points) else None
+                pdf = render_pdf(v.folder, picture=picture,
+                                 recipe=self.recipe_path if self.session and self.session.recipe.name == v.recipe else None)
+        except (InspectorError, OSError) as e:
+            self.progress_label.setText(f"export failed: {e}")
+            return None
+        self.progress_label.setText(f"report written: {pdf}")
+        return pdf
+
+    # -- roles --------------------------------------------------------------------------------
+    def ask_login(self) -> None:
+        from inspector.gui.editor import LoginDialog
+        from inspector.roles import password_problem
+
+        dlg = LoginDialog(self, password_problem(config_dir=self.config_dir))
+        if dlg.exec():
+            self.login(dlg.who.text().strip() or "engineer", dlg.password.text())
+
+    def login(self, who: str, password: str) -> bool:
+        ok = self.roles.login_engineer(password, who)
+        if not ok:
+            QMessageBox.warning(self, "Engineer login", "Wrong password, or no engineer password is set "
+                                "(`inspector roles set-password`).")
+        self._update_role()
+        return ok
+
+    def logout(self) -> None:
+        self.roles.logout()
+        self._update_role()
+
+    def _check_idle(self) -> None:
+        if self.roles.check_idle():
+            self.progress_label.setText("engineer idle: back to operator")
+        self._update_role()
+
+    def _update_role(self) -> None:
+        if self.roles.role == ENGINEER:
+            left = self.roles.idle_remaining()
+            self.role_label.setText(f"ENGINEER {self.roles.user}  (operator in {int(left) // 60}:{int(left) % 60:02d})")
+            self.role_label.setStyleSheet("color: #b86e00; font-weight: bold;")
+        else:
+            self.role_label.setText("OPERATOR")
+            self.role_label.setStyleSheet("font-weight: bold;")
+        self._update_buttons()
+
+    def ask_recipe(self) -> None:
+        if self.roles.role != ENGINEER:
+            return
+        path, _ = QFileDialog.getOpenFileName(self, "Choose recipe", str(self.recipe_path.parent), "Recipes (*.toml)")
+        if path:
+            self.open_recipe(Path(path))
+
+    def edit_recipe(self) -> Any:
+        """The recipe editor (engineer only); a saved recipe is used at once."""
+        if self.roles.role != ENGINEER:
+            self.progress_label.setText("the recipe editor needs engineer mode (Ctrl+L)")
+            return None
+        from inspector.gui.editor import RecipeEditor
+
+        try:
+            editor = RecipeEditor(self.recipe_path, self.pm, self.out / "recipes", self)
+        except RecipeError as e:
+            self.progress_label.setText(f"cannot edit: {e}")
+            return None
+        (self.out / "recipes").mkdir(parents=True, exist_ok=True)
+        editor.accepted.connect(lambda: editor.saved and self.open_recipe(editor.saved))
+        editor.open()
+        return editor
+
+    def resizeEvent(self, event: Any) -> None:  # noqa: N802
+        super().resizeEvent(event)
+        small = self.height() < 900
+        self.banner.set_compact(small)
+        self.history.canvas.setMaximumHeight(110 if small else 170)
+        for b in (self.inspect_button, self.live_button, self.cancel_button):
+            b.setMinimumHeight(48 if small else 64)
+
+    # -- closing ------------------------------------------------------------------------------
+    def closeEvent(self, event: Any) -> None:  # noqa: N802
+        """Closing during an inspection cancels it and joins the worker."""
+        from PySide6.QtWidgets import QApplication
+
+        self._closing = True
+        self._idle.stop()
+        self._close_session()
+        QApplication.instance().removeEventFilter(self._activity)
+        self.view3d.close_plotter()
+        super().closeEvent(event)

@@ -1,0 +1,127 @@
+"""The session in a worker thread; what it does reaches the GUI as queued Qt signals.
+
+VTK and Qt widgets may be touched only on the GUI thread (pyvistaqt aborts the process on
+an ``add_mesh`` from another thread), so the worker never touches a widget: it emits
+signals whose receivers live in the GUI thread, which Qt delivers through the event loop
+(a queued connection). Stage progress comes from the lifecycle hooks
+(``inspector_before_stage`` / ``inspector_after_stage``) of a small plugin registered on the
+session's plugin manager; results are turned into a :class:`~inspector.gui.viewmodel.ResultView`
+in the worker, so the GUI thread only draws.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+from PySide6.QtCore import QObject, Signal
+
+from inspector import hookimpl
+from inspector.errors import InspectorError
+from inspector.gui.viewmodel import from_outcome
+from inspector.session import Inspected, RunEnded, RunStarted, Session, Source, Warned
+
+__all__ = ["SessionWorker"]
+
+
+class _Progress:
+    """Lifecycle-hook observer: each stage's start and end as a signal."""
+
+    def __init__(self, worker: SessionWorker) -> None:
+        self.worker = worker
+
+    @hookimpl
+    def inspector_before_stage(self, context: Any, stage: Any, step: str) -> None:
+        self.worker.stage.emit(context.capture.name, step, -1.0)
+
+    @hookimpl
+    def inspector_after_stage(self, context: Any, stage: Any, step: str, seconds: float) -> None:
+        self.worker.stage.emit(context.capture.name, step, float(seconds))
+
+
+class SessionWorker(QObject):
+    """Runs :meth:`Session.run` in a Python thread, one run at a time.
+
+    Signals
+    -------
+    started(str)
+        A run began (its source in words).
+    stage(str, str, float)
+        capture, stage name, seconds (-1 when the stage starts).
+    result(object)
+        A :class:`~inspector.gui.viewmodel.ResultView` (also for ``aborted``).
+    warned(str)
+        A warning of the run (each once).
+    ended(object)
+        The :class:`~inspector.session.RunSummary`, or None when the run could not start.
+    failed(str)
+        A one-line error (bad source, driver failure): nothing was lost, the GUI goes on.
+    """
+
+    started = Signal(str)
+    stage = Signal(str, str, float)
+    result = Signal(object)
+    warned = Signal(str)
+    ended = Signal(object)
+    failed = Signal(str)
+
+    def __init__(self, session: Session, parent: QObject | None = None) -> None:
+        super().__init__(parent)
+        self.session = session
+        self._thread: threading.Thread | None = None
+        self._progress = _Progress(self)
+        session.pm.register(self._progress, name="inspector-gui-progress")
+        self._unsubscribe = session.subscribe(self._on_event)
+
+    @property
+    def busy(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def start(self, source: Source | None = None) -> bool:
+        """Start a run; False (nothing started) when one is in progress."""
+        if self.busy:
+            return False
+        self._thread = threading.Thread(target=self._run, args=(source,), name="inspector-session", daemon=True)
+        self._thread.start()
+        return True
+
+    def stop(self) -> None:
+        """End the run after the capture in progress."""
+        self.session.stop()
+
+    def cancel(self) -> None:
+        """End the run before the next stage (the capture in progress becomes ABORTED)."""
+        self.session.cancel()
+
+    def shutdown(self, timeout_s: float = 60.0) -> bool:
+        """Cancel any run, join the thread, detach from the session; True when joined."""
+        self.session.cancel()
+        joined = True
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            joined = not self._thread.is_alive()
+        self._unsubscribe()
+        if self.session.pm.pm.is_registered(self._progress):
+            self.session.pm.pm.unregister(self._progress)
+        return joined
+
+    # -- worker thread -------------------------------------------------------------------
+    def _run(self, source: Source | None) -> None:
+        try:
+            self.session.run(source)
+        except InspectorError as e:  # RecipeError too: one line, the GUI goes on
+            self.failed.emit(str(e))
+            self.ended.emit(None)
+        except Exception as e:  # noqa: BLE001 - a bug: one line for the operator
+            self.failed.emit(f"internal error {type(e).__name__}: {' '.join(str(e).split())}")
+            self.ended.emit(None)
+
+    def _on_event(self, event: Any) -> None:
+        if isinstance(event, RunStarted):
+            self.started.emit(event.source)
+        elif isinstance(event, Inspected):
+            self.result.emit(from_outcome(event.outcome, event.folder, self.session.reference))
+        elif isinstance(event, Warned):
+            self.warned.emit(f"{event.capture}: {event.text}")
+        elif isinstance(event, RunEnded):
+            self.ended.emit(event.summary)

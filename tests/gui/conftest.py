@@ -1,0 +1,50 @@
+"""GUI tests: a real X display (pytest-xvfb starts Xvfb; make installs it), pytest-qt, and a
+leak check after each test in the manner of pyvistaqt's own conftest."""
+
+from __future__ import annotations
+
+import gc
+import os
+
+import pytest
+
+
+NO_DISPLAY = None
+if os.environ.get("QT_QPA_PLATFORM", "xcb") not in ("xcb", ""):
+    NO_DISPLAY = f"QT_QPA_PLATFORM={os.environ['QT_QPA_PLATFORM']}: VTK's window needs a real X display"
+
+
+def pytest_collection_modifyitems(config, items):
+    # pytest-xvfb has set DISPLAY by now when Xvfb is installed.
+    reason = NO_DISPLAY or (None if os.environ.get("DISPLAY") else
+                            "no X display: install xvfb (make does it when run as root) so pytest-xvfb can start one")
+    if reason is None:
+        return
+    for item in items:
+        if "gui" in item.keywords:
+            item.add_marker(pytest.mark.skip(reason=reason))
+
+
+def _live_interactors() -> list:
+    from pyvistaqt import QtInteractor
+
+    return [o for o in gc.get_objects() if isinstance(o, QtInteractor) and not getattr(o, "_closed", True)]
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_windows(request):
+    """After a GUI test: no open top-level window and no plotter left unclosed."""
+    yield
+    if "gui" not in request.keywords or "qapp" not in request.fixturenames and "qtbot" not in request.fixturenames:
+        return
+    from PySide6.QtWidgets import QApplication
+
+    app = QApplication.instance()
+    for _ in range(3):
+        app.processEvents()
+    gc.collect()
+    open_windows = [w for w in app.topLevelWidgets() if w.isVisible()]
+    for w in open_windows:
+        w.close()
+    assert not open_windows, f"windows left open: {[type(w).__name__ for w in open_windows]}"
+    assert not _live_interactors(), "a QtInteractor was not closed (VTK window and actors leak)"
