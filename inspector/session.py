@@ -256,8 +256,8 @@ class Session:
             outdir = _result_folder(self.outdir)
             if hasattr(driver, "taken"):  # a reused capture name must not overwrite a result
                 driver.taken = lambda name: (outdir / name).exists()
-            if hasattr(driver, "sleep"):  # a waiting driver wakes up for stop() and cancel()
-                driver.sleep = self._sleep
+            if hasattr(driver, "sleep"):  # a waiting driver notices stop() and cancel()
+                driver.sleep = self._waker(driver.sleep)
             self.pm.on_run_start(self.recipe, outdir, what)
             summary = None
             try:
@@ -356,9 +356,17 @@ class Session:
             n += 1
             yield acq
 
-    def _sleep(self, seconds: float) -> None:
-        if self._stop.wait(seconds):
-            raise _Stopped
+    def _waker(self, sleep: Callable[[float], None]) -> Callable[[float], None]:
+        """The driver's own sleep (one poll interval), ended by :meth:`stop` or :meth:`cancel`."""
+
+        def wake(seconds: float) -> None:
+            if self._stop.is_set():
+                raise _Stopped
+            sleep(seconds)
+            if self._stop.is_set():
+                raise _Stopped
+
+        return wake
 
     def _emit(self, event: Event) -> None:
         import sys
