@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -394,17 +393,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _save_traceback() -> str:
-    """Write the current exception's traceback to a file in the temporary folder; its path."""
-    import tempfile
-    import time
-    import traceback
+    """Write the current exception's traceback to a new private file; its path."""
+    from inspector.tracebacks import save_traceback
 
-    path = Path(tempfile.gettempdir()) / f"inspector-traceback-{time.strftime('%Y%m%d-%H%M%S')}-{os.getpid()}.txt"
-    try:
-        path.write_text(traceback.format_exc())
-    except OSError:
-        return "(could not be written)"
-    return str(path)
+    return save_traceback()
 
 
 if __name__ == "__main__":  # pragma: no cover

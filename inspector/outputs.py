@@ -21,9 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from inspector.errors import CaptureError
 from inspector.model import InspectionResult
+from inspector.names import check_name, printable
 
-__all__ = ["write_result", "result_to_json", "write_ply", "ply_chunks", "read_ply", "one_line"]
+__all__ = ["write_result", "result_folder", "result_to_json", "write_ply", "ply_chunks", "read_ply", "one_line"]
 
 BCPS_PLY = "bcps_points.ply"
 RECON_PLY = "reconstruction.ply"
@@ -164,9 +166,38 @@ def read_ply(path: Path) -> dict[str, np.ndarray]:
     return {name: np.asarray(v[name]) for name in v.dtype.names}
 
 
+def result_folder(outdir: Path, capture: str) -> Path:
+    """``outdir/capture``, the result folder of ``capture``, once it is sure to be one.
+
+    Whatever driver named the capture, a result is written only in a direct child of
+    ``outdir`` (resolved, links followed) that is, or can become, a folder.
+
+    Raises
+    ------
+    CaptureError
+        The name cannot name a result folder (:func:`inspector.names.check_name`: ``..``,
+        a separator, a control character, ``history.sqlite``...), it resolves outside
+        ``outdir``, or something that is not a folder has that name. Nothing is written.
+    """
+    check_name(capture)
+    folder = Path(outdir) / capture
+    root = Path(outdir).resolve()
+    if folder.resolve().parent != root:
+        raise CaptureError(f"capture '{printable(capture)}': its result folder {folder} resolves outside {root}; nothing written")
+    if folder.exists() and not folder.is_dir():
+        raise CaptureError(f"capture '{printable(capture)}': {folder} exists and is not a folder; nothing written")
+    return folder
+
+
 def write_result(result: InspectionResult, outdir: Path, *, trace: str | None = None) -> Path:
-    """Write one capture's result folder and return it."""
-    folder = Path(outdir) / result.capture
+    """Write one capture's result folder, ``outdir/<capture>``, and return it.
+
+    Raises
+    ------
+    CaptureError
+        From :func:`result_folder`, before anything is written.
+    """
+    folder = result_folder(Path(outdir), result.capture)
     folder.mkdir(parents=True, exist_ok=True)
     for stale in (BCPS_PLY, RECON_PLY, RECON_MESH_PLY, "traceback.txt"):
         (folder / stale).unlink(missing_ok=True)
@@ -212,8 +243,9 @@ def write_result(result: InspectionResult, outdir: Path, *, trace: str | None = 
 
 def one_line(result: InspectionResult) -> str:
     """A progress/summary line for one result."""
+    name = printable(result.capture)  # one line whatever the capture's name holds
     if result.verdict == "error":
-        return f"{result.capture}: ERROR {result.error}"
+        return f"{name}: ERROR {result.error}"
     s = result.stats
     dev = ""
     if "deviation_mm" in s:
@@ -221,4 +253,4 @@ def one_line(result: InspectionResult) -> str:
         dev = f"  deviation mean {d['mean']:+.4f} min {d['min']:+.4f} max {d['max']:+.4f} mm"
     n = len(result.defects)
     defects = f"  {n} defect{'s' if n != 1 else ''}" if n else ""
-    return f"{result.capture}: {result.verdict.upper()}{dev}{defects}  ({result.timings_s.get('total', 0.0):.2f} s)"
+    return f"{name}: {result.verdict.upper()}{dev}{defects}  ({result.timings_s.get('total', 0.0):.2f} s)"

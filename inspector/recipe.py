@@ -30,6 +30,7 @@ Layout::
 
 from __future__ import annotations
 
+import math
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -104,7 +105,19 @@ def _number(table: Mapping[str, Any], key: str, where: str) -> float:
     v = table[key]
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise RecipeError(f"{where}.{key}: expected a number, got {v!r}")
-    return float(v)
+    return _finite(v, f"{where}.{key}")
+
+
+def _finite(v: int | float, where: str) -> float:
+    """``v`` as a float, refused unless finite: an infinite limit passes every part, and a
+    NaN passes every comparison."""
+    try:
+        f = float(v)
+    except OverflowError:  # an integer beyond any float
+        f = math.inf
+    if not math.isfinite(f):
+        raise RecipeError(f"{where}: expected a finite number, got {v!r}")
+    return f
 
 
 def _band(table: Mapping[str, Any], where: str) -> Band:
@@ -118,7 +131,8 @@ def _vec3(table: Mapping[str, Any], key: str, where: str) -> tuple[float, float,
     v = table.get(key)
     if not isinstance(v, list) or len(v) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
         raise RecipeError(f"{where}.{key}: expected 3 numbers, got {v!r}")
-    return (float(v[0]), float(v[1]), float(v[2]))
+    x, y, z = (_finite(c, f"{where}.{key}[{i}]") for i, c in enumerate(v))
+    return (x, y, z)
 
 
 def _tolerance(raw: Any, where: str) -> Tolerance:
@@ -235,6 +249,8 @@ def read_recipe_toml(path: str | Path) -> dict[str, Any]:
         raise RecipeError(f"{p.name}: not a UTF-8 text file") from None
     except tomllib.TOMLDecodeError as e:
         raise RecipeError(f"{p.name}: not valid TOML ({e})") from None
+    except RecursionError:  # tomllib recurses once per level of nested arrays and tables
+        raise RecipeError(f"{p.name}: not a recipe (arrays or tables nested too deeply)") from None
 
 
 def load_recipe(path: str | Path, pm: Any, *, reference: str | None = None) -> Recipe:

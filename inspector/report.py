@@ -672,8 +672,19 @@ def _read_result(path: Path) -> dict:
     """result.json (CONTRACT) with what the pictures need checked; InputError otherwise."""
     from inspector.errors import InputError
 
+    from inspector.limits import json_depth, limit
+
     try:
-        res = json.loads(path.read_text())
+        # Bounded like every JSON input, before it is read and parsed (a result.json nests
+        # capture.json's metadata two levels down, hence + 2).
+        size, most = path.stat().st_size, limit("MAX_JSON_BYTES")
+        if size > most:
+            raise InputError(f"{path}: cannot read ({size} bytes, more than the {most} a JSON input may have: INSPECTOR_MAX_JSON_BYTES)")
+        text = path.read_text()
+        depth, deepest = json_depth(text.encode("utf-8", "surrogatepass")), limit("MAX_JSON_DEPTH") + 2
+        if depth > deepest:
+            raise InputError(f"{path}: cannot read (nested {depth} levels deep, more than {deepest}: INSPECTOR_MAX_JSON_DEPTH)")
+        res = json.loads(text)
     except (OSError, ValueError) as e:
         raise InputError(f"{path}: cannot read ({type(e).__name__})") from None
     if not isinstance(res, dict):

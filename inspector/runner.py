@@ -38,6 +38,9 @@ class Outcome:
     result: InspectionResult
     context: InspectionContext | None
     trace: str | None = None
+    #: The result folder written for it (None: no ``outdir``, aborted, or refused by
+    #: :func:`inspector.outputs.write_result`, e.g. a capture named ``..``).
+    folder: Path | None = None
 
 
 def _summary(ctx: InspectionContext) -> dict[str, Any]:
@@ -195,12 +198,29 @@ def run_batch(
             return
         folder = None
         if outdir is not None:
-            folder = outputs.write_result(outcome.result, Path(outdir), trace=outcome.trace)
+            try:
+                folder = outputs.write_result(outcome.result, Path(outdir), trace=outcome.trace)
+            except InspectorError as exc:
+                # A name that cannot be a result folder (``..``, ``history.sqlite``...):
+                # nothing is written, the capture is an error in one line, the batch goes on.
+                outcome = _unwritten(outcome, str(exc))
+            else:
+                outcome = dataclasses.replace(outcome, folder=folder)
         pm.on_result(outcome.result, folder)
         if progress is not None:
             progress(outputs.one_line(outcome.result))
         yield outcome
         outcome = capture = None  # not alive while the next capture is read and inspected
+
+
+def _unwritten(outcome: Outcome, reason: str) -> Outcome:
+    """``outcome`` as an error whose result could not be written: an error keeps its own
+    reason (for a capture refused by its driver, the same name problem); a verdict becomes
+    an error, so no part passes without its result."""
+    result = outcome.result
+    if result.verdict != "error":
+        result = dataclasses.replace(result, verdict="error", error=reason)
+    return Outcome(result, outcome.context, outcome.trace)
 
 
 def exit_status(results: Iterable[InspectionResult | str]) -> int:

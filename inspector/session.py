@@ -271,7 +271,7 @@ class Session:
                     i += 1
                     result = outcome.result
                     counts[result.verdict] = counts.get(result.verdict, 0) + 1
-                    folder = outdir / result.capture if result.verdict != ABORTED else None
+                    folder = outcome.folder  # None: nothing was written (aborted, or a refused name)
                     self._emit(Inspected(i, total, outcome, folder))
                     for w in result.stats.get("warnings", ()):
                         if w not in warned:  # once per run, not once per part
@@ -408,8 +408,10 @@ def _distinct_names(folders: Sequence[Path] | Iterable[Path]) -> list[Path]:
     the same result folder (OUTDIR/<name>/): refused, naming both."""
     seen: dict[str, Path] = {}
     out = []
+    from inspector.names import folder_name
+
     for f in folders:
-        key = f.name or str(f)
+        key = folder_name(f) or str(f)
         if key in seen:
             if seen[key].resolve() == f.resolve():
                 continue  # the same capture given twice: inspected once

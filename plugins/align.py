@@ -18,10 +18,10 @@ from inspector.registry import StageRegistry, StageSpec
 
 @dataclass(frozen=True)
 class AlignParams:
-    voxel_mm: float = param(1.0, "down-sampling of the global search, mm", min=0.05)
-    inlier_mm: float = param(2.0, "distance under which a point counts as matched, mm (a part off by more is a wrong part)", min=0.01)
+    voxel_mm: float = param(1.0, "down-sampling of the global search, mm", min=0.05, max=100.0)
+    inlier_mm: float = param(2.0, "distance under which a point counts as matched, mm (a part off by more is a wrong part)", min=0.01, max=100.0)
     min_fitness: float = param(0.3, "fraction of matched points under which alignment has failed (wrong reference?)", min=0.0, max=1.0)
-    seed: int = param(0, "random seed of the global search (results are deterministic)")
+    seed: int = param(0, "random seed of the global search (results are deterministic)", min=0, max=2**31 - 1)
 
 
 def run_align(ctx: InspectionContext, p: AlignParams) -> InspectionContext:

@@ -29,14 +29,14 @@ class RayParams:
     step_mm: float = param(0.25, "coarse sampling step along each contour ray, mm", min=0.01, max=5.0)
     refine_levels: int = param(3, "refinement levels around the coarse minimum (each 5x finer: 2 um after 3)", min=0, max=6)
     refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
-    refine_robust_mm: float = param(0.1, "robust scale of the re-alignment (points beyond are down-weighted), mm", min=0.001)
-    refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001)
-    refine_stride: int = param(3, "the selection that feeds the re-alignment uses every n-th contour point", min=1)
+    refine_robust_mm: float = param(0.1, "robust scale of the re-alignment (points beyond are down-weighted), mm", min=0.001, max=100.0)
+    refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001, max=100.0)
+    refine_stride: int = param(3, "the selection that feeds the re-alignment uses every n-th contour point", min=1, max=1000)
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
     accept_px: float = param(0.2, "largest hull violation of a selected point, px, plus the silhouettes' contour uncertainty (hard-edged images: 0.3 px; beyond: the ray has no point)", min=0.0, max=5.0)
-    violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0)
+    violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0, max=1000.0)
     backend: Literal["numba", "numpy"] = param("numba", "hull kernel: compiled (numba) or the numpy reference")
-    margin_mm: float = param(2.0, "margin added around the reconstruction's bounds for the rays, mm", min=0.0)
+    margin_mm: float = param(2.0, "margin added around the reconstruction's bounds for the rays, mm", min=0.0, max=100.0)
     prior: Literal["size", "nominal"] = param(
         "size", "what the final selection is made against: the reference under the part's best-fit scale "
         "(size), or the nominal reference; deviations are always against the nominal", )
@@ -45,8 +45,8 @@ class RayParams:
 @dataclass(frozen=True)
 class SurfaceParams:
     refine_pose: bool = param(True, "re-align the reference on the selected points, then select again")
-    refine_robust_mm: float = param(0.3, "robust scale of the re-alignment, mm", min=0.001)
-    refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001)
+    refine_robust_mm: float = param(0.3, "robust scale of the re-alignment, mm", min=0.001, max=100.0)
+    refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001, max=100.0)
 
 
 def _bounds(ctx: InspectionContext, margin: float) -> np.ndarray:

@@ -14,8 +14,8 @@ from inspector.registry import StageRegistry, StageSpec
 @dataclass(frozen=True)
 class CarveParams:
     voxel_mm: float = param(0.5, "finest voxel edge, mm (only cells near the surface are refined)", min=0.1, max=10.0)
-    coarse_mm: float = param(0.0, "edge of the starting cells, mm (0: chosen from the bounds)", min=0.0)
-    mesh_voxel_mm: float = param(0.0, "grid of the display mesh, mm (0: max(voxel, 0.5 mm))", min=0.0)
+    coarse_mm: float = param(0.0, "edge of the starting cells, mm (0: chosen from the bounds)", min=0.0, max=1000.0)
+    mesh_voxel_mm: float = param(0.0, "grid of the display mesh, mm (0: max(voxel, 0.5 mm))", min=0.0, max=100.0)
 
 
 def run_carve(ctx: InspectionContext, p: CarveParams) -> InspectionContext:

@@ -47,9 +47,9 @@ def capability_warning(tol, footprint_mm: float) -> str | None:
 
 @dataclass(frozen=True)
 class EvaluateParams:
-    cluster_radius_mm: float = param(1.0, "out-of-tolerance points closer than this belong to one defect, mm", min=0.01)
-    min_points: int = param(3, "points a defect needs to reject the part", min=1)
-    min_cameras: int = param(2, "cameras whose contours a defect's points must come from to reject the part", min=1)
+    cluster_radius_mm: float = param(1.0, "out-of-tolerance points closer than this belong to one defect, mm", min=0.01, max=1000.0)
+    min_points: int = param(3, "points a defect needs to reject the part", min=1, max=1_000_000)
+    min_cameras: int = param(2, "cameras whose contours a defect's points must come from to reject the part", min=1, max=1024)
 
 
 def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:

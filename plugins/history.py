@@ -15,10 +15,13 @@ line.
 from __future__ import annotations
 
 import json
+import math
 import sqlite3
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from inspector import hookimpl
 from inspector.errors import InputError
@@ -73,6 +76,22 @@ def _connect(path: Path) -> sqlite3.Connection:
     return con
 
 
+def _finite(value: Any) -> Any:
+    """``value`` with every non-finite float (NaN, +-inf, numpy's too) as None.
+
+    capture.json may hold ``NaN`` (Python's json writes and reads it), which is not JSON:
+    the ``metadata`` column must stay readable by any SQL client's JSON functions. Only
+    floats change; what ``default=str`` writes for other types is unchanged.
+    """
+    if isinstance(value, float | np.floating):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
 def record(result: InspectionResult, outdir: Path, *, now: datetime | None = None) -> int:
     """Append one inspection to ``outdir/history.sqlite``; returns its row id.
 
@@ -100,7 +119,7 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
         tol.get("upper"),
         result.timings_s.get("total"),
         result.capture,
-        json.dumps(meta, default=str, sort_keys=True),
+        json.dumps(_finite(meta), default=str, sort_keys=True, allow_nan=False),
     )
     con = _connect(outdir / HISTORY_FILE)
     try:

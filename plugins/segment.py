@@ -34,7 +34,7 @@ class SegmentParams:
         "impulse",
         "3x3 median against impulse noise: 'impulse' replaces only outlier pixels (keeps anti-aliased edges), 'full' filters every pixel",
     )
-    impulse_threshold: float = param(60.0, "grey-level difference to the 3x3 median above which a pixel is an impulse", min=1.0)
+    impulse_threshold: float = param(60.0, "grey-level difference to the 3x3 median above which a pixel is an impulse (255: none is)", min=1.0, max=255.0)
     subpixel: Literal["area", "linear"] = param(
         "area", "sub-pixel contour: 'area' (coverage summed across the edge, exact for straight edges) or 'linear' (marching squares)"
     )
@@ -45,7 +45,7 @@ class SegmentParams:
         min=-1.0,
         max=10.0,
     )
-    min_area_px: int = param(50, "connected components smaller than this are noise", min=1)
+    min_area_px: int = param(50, "connected components smaller than this are noise", min=1, max=100_000_000)
 
 
 def _denoise(grey: np.ndarray, p: SegmentParams) -> np.ndarray:

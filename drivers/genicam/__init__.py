@@ -48,14 +48,14 @@ class GenicamParams:
     trigger_selector: str = param("FrameStart", "TriggerSelector to arm (hardware and software trigger)")
     trigger_source: str = param("Line0", "TriggerSource of the hardware trigger")
     trigger_activation: str = param("RisingEdge", "TriggerActivation of the hardware trigger")
-    exposure_us: float | None = param(None, "exposure time, us (ExposureTime/ExposureTimeAbs; ExposureAuto off); none: as configured", min=0.0)
+    exposure_us: float | None = param(None, "exposure time, us (ExposureTime/ExposureTimeAbs; ExposureAuto off); none: as configured", min=0.0, max=1e8)
     gain_db: float | None = param(None, "gain, dB (Gain; GainAuto off); none: as configured")
     pixel_format: str = param("", "PixelFormat to set (e.g. Mono8, Mono16, BayerRG8); empty: as configured")
     set_size: bool = param(False, "set Width/Height of every device to its rig camera's image size")
     bayer: Literal["rgb", "raw"] = param("rgb", "Bayer formats: demosaic to RGB, or keep the raw mosaic as grey")
-    timeout_s: float = param(2.0, "seconds to wait for every camera's frame after a trigger", min=0.001)
-    num_buffers: int = param(4, "buffers announced per device", min=1)
-    freerun_discard: int = param(1, "free-running devices: frames completed after the trigger that are dropped (in flight at the trigger)", min=0)
+    timeout_s: float = param(2.0, "seconds to wait for every camera's frame after a trigger", min=0.001, max=3600.0)
+    num_buffers: int = param(4, "buffers announced per device", min=1, max=1024)
+    freerun_discard: int = param(1, "free-running devices: frames completed after the trigger that are dropped (in flight at the trigger)", min=0, max=1000)
     polarity: Literal["dark-object", "bright-object"] = param("dark-object", "the captures' polarity (capture.json)")
 
 

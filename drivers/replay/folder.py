@@ -57,6 +57,7 @@ import numpy as np
 
 from inspector.errors import CaptureError
 from inspector.kernels.camera import is_rotation
+from inspector.limits import limit, load_json
 from inspector.model import Camera, Capture, Rig, Truth
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -106,10 +107,6 @@ def _fmt(x: float) -> str:
     return f"{x:.6g}"
 
 
-def _json_error(label: str, exc: json.JSONDecodeError) -> CaptureError:
-    return CaptureError(f"{label}: not valid JSON (line {exc.lineno} column {exc.colno}): {exc.msg}")
-
-
 class _DuplicateKey(Exception):
     def __init__(self, key: str) -> None:
         self.key = key
@@ -125,23 +122,12 @@ def _no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
 
 
 def _load_json(path: Path, label: str) -> Any:
-    """Parse a JSON file; every failure is a CaptureError naming ``label``."""
+    """Parse a JSON file within the input bounds (size and nesting depth checked before it
+    is parsed, :mod:`inspector.limits`); every failure is a CaptureError naming ``label``."""
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise CaptureError(f"{label}: cannot be read ({exc.strerror or exc})") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise CaptureError(f"{label}: not UTF-8 text (byte {exc.start})") from None
-    try:
-        return json.loads(text, object_pairs_hook=_no_duplicates)
-    except json.JSONDecodeError as exc:
-        raise _json_error(label, exc) from None
+        return load_json(path, label, CaptureError, object_pairs_hook=_no_duplicates)
     except _DuplicateKey as exc:
         raise CaptureError(f"{label}: duplicate key {exc.key!r}") from None
-    except (ValueError, RecursionError) as exc:  # e.g. absurdly deep nesting
-        raise CaptureError(f"{label}: not valid JSON ({exc})") from None
 
 
 def _is_number(x: Any) -> bool:
@@ -254,6 +240,10 @@ def parse_rig(data: Any, label: str = RIG_FILE) -> Rig:
         raise CaptureError(f"{label}: cameras must be a list, got {type(cams).__name__}")
     if not cams:
         raise CaptureError(f"{label}: cameras is empty")
+    # Counted before any camera is built: a rig of 10^6 cameras took minutes and GBs to refuse.
+    most = limit("MAX_CAMERAS")
+    if len(cams) > most:
+        raise CaptureError(f"{label}: {len(cams)} cameras, more than the {most} a rig may have (INSPECTOR_MAX_CAMERAS)")
     cameras = [_parse_camera(c, i, label, _UNIT_SCALE[units]) for i, c in enumerate(cams)]
     seen: dict[str, int] = {}
     for i, c in enumerate(cameras):

@@ -21,10 +21,14 @@ After the runner has written a capture's result, its folder is moved to ``INBOX/
 restarts, and nothing is deleted. A folder whose name is already used, in ``done/`` or
 downstream (the CLI: ``OUTDIR/<name>/`` exists: a reused part number), is renamed
 ``NAME-2``, ``NAME-3``... in the inbox before it is read, so its result never overwrites an
-earlier one and the result folder keeps the capture folder's name. With ``after = "keep"`` folders stay where they are and each is inspected once
-per run. Folders already in the inbox at start (a backlog) come first, oldest first.
-Names starting with ``.`` or ending in ``.tmp``/``.partial`` are ignored (writers'
-temporary folders), and so is ``done/``.
+earlier one and the result folder keeps the capture folder's name. A name reserved in the
+result folder (``history.sqlite``, ``recipes``: :data:`inspector.names.RESERVED`) is renamed
+the same way; a name no result folder can take (a control character, bytes that are not
+UTF-8) is reported as an error in one line and the folder is moved to ``done/``
+(:func:`~inspector_drivers.replay.named_acquisition`). With ``after = "keep"`` folders stay
+where they are and each is inspected once per run. Folders already in the inbox at start
+(a backlog) come first, oldest first. Names starting with ``.`` or ending in
+``.tmp``/``.partial`` are ignored (writers' temporary folders), and so is ``done/``.
 
 The watch ends after ``count`` captures, after ``idle_exit_s`` without a new one (0:
 never), or on Ctrl-C (results written so far are kept).
@@ -32,7 +36,6 @@ never), or on Ctrl-C (results written so far are kept).
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -40,8 +43,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
-from inspector.errors import InputError, RecipeError
-from inspector.params import param
+from inspector.errors import InputError, InspectorError, RecipeError
+from inspector.limits import limit, load_json
+from inspector.names import RESERVED
+from inspector.params import check_params, param
 from inspector.registry import Acquisition
 
 __all__ = ["HotFolderParams", "HotFolderDriver", "DONE_DIR", "folder_state"]
@@ -54,12 +59,18 @@ _TEMP_SUFFIXES = (".tmp", ".partial")
 @dataclass(frozen=True)
 class HotFolderParams:
     folder: str = param("", "the inbox: capture folders appear in it (the CLI's --watch)")
-    settle_s: float = param(0.5, "a complete folder must be unchanged this long before it is read, s", min=0.0)
-    give_up_s: float = param(30.0, "an incomplete folder unchanged this long is handed over anyway (the result names what is missing), s", min=0.0)
+    settle_s: float = param(0.5, "a complete folder must be unchanged this long before it is read, s", min=0.0, max=3600.0)
+    give_up_s: float = param(30.0, "an incomplete folder unchanged this long is handed over anyway (the result names what is missing), s", min=0.0, max=86400.0)
     poll_s: float = param(0.2, "how often the inbox is scanned, s", min=0.01, max=60.0)
-    idle_exit_s: float = param(0.0, "stop after this long without a new capture, s (0: never)", min=0.0)
+    idle_exit_s: float = param(0.0, "stop after this long without a new capture, s (0: never)", min=0.0, max=604800.0)
     count: int = param(0, "stop after this many captures (0: no limit)", min=0)
     after: Literal["move", "keep"] = param("move", "what becomes of an inspected folder: moved to INBOX/done/, or kept in place")
+
+    def __post_init__(self) -> None:
+        # The CLI builds these from --watch/--count/--idle-exit, not from a recipe table:
+        # the same checks (a NaN poll_s once killed the watcher; an infinite settle_s
+        # never read a complete capture).
+        check_params(self, "hotfolder")
 
 
 def folder_state(folder: Path) -> tuple[tuple[str, int, int], ...]:
@@ -81,13 +92,29 @@ def folder_state(folder: Path) -> tuple[tuple[str, int, int], ...]:
 
 
 def _complete(folder: Path) -> bool:
-    """rig.json parses and every camera it names has an image (cheap; never raises)."""
+    """rig.json parses and every camera it names has an image (cheap; never raises).
+
+    Within the input bounds (:mod:`inspector.limits`): a huge or deeply nested rig.json is
+    never complete, so it is handed over after ``give_up_s`` and its result says why.
+    """
     try:
-        data = json.loads((folder / "rig.json").read_text())
-        names = [c["name"] for c in data["cameras"]]
+        data = load_json(folder / "rig.json", "rig.json")
+        cameras = data["cameras"]
+        if len(cameras) > limit("MAX_CAMERAS"):
+            return False
+        names = [c["name"] for c in cameras]
         return bool(names) and all((folder / "images" / f"{n}.png").is_file() for n in names)
-    except (OSError, ValueError, KeyError, TypeError):
+    except (InspectorError, OSError, ValueError, KeyError, TypeError):
         return False
+
+
+def _suffixed(name: str, k: int) -> str:
+    """``NAME-k``, ``NAME`` shortened so that the whole fits a file name (255 bytes)."""
+    suffix = f"-{k}"
+    base = name
+    while base and len((base + suffix).encode("utf-8", "surrogateescape")) > 255:
+        base = base[:-1]
+    return base + suffix
 
 
 @dataclass
@@ -157,9 +184,9 @@ class HotFolderDriver:
         """``folder``, renamed in the inbox if its name is taken downstream or in done/."""
         done = self.inbox / DONE_DIR
         name, k = folder.name, 1
-        while self.taken(name) or (self.params.after == "move" and (done / name).exists()):
+        while name in RESERVED or self.taken(name) or (self.params.after == "move" and (done / name).exists()):
             k += 1
-            name = f"{folder.name}-{k}"
+            name = _suffixed(folder.name, k)
         if name == folder.name:
             return folder
         target = folder.with_name(name)
@@ -187,6 +214,7 @@ class HotFolderDriver:
             raise InputError(f"hotfolder: cannot move {folder} to {target} ({e.strerror or e})") from None
 
     def acquire(self) -> Iterator[Acquisition]:
+        from inspector_drivers.replay import named_acquisition
         from inspector_drivers.replay.folder import read_capture
 
         n = 0
@@ -199,7 +227,7 @@ class HotFolderDriver:
                     continue
                 handed = True
                 folder = self._unique(folder)
-                yield Acquisition(folder.name, lambda folder=folder: read_capture(folder))
+                yield named_acquisition(folder, read_capture)
                 # Resumed: the consumer has inspected it and written its result.
                 self._finish(folder)
                 n += 1

@@ -399,13 +399,14 @@ def _nerf_intrinsics(meta: Mapping[str, Any], frame: Mapping[str, Any], w: int, 
 
 
 def _load_json_file(path: Path) -> Any:
-    text = _read_text(path)
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{_label(path)}: not valid JSON (line {exc.lineno} column {exc.colno}): {exc.msg}") from None
-    except (ValueError, RecursionError) as exc:
-        raise InputError(f"{_label(path)}: not valid JSON ({exc})") from None
+    """A dataset's JSON file, within the input bounds (size and depth, :mod:`inspector.limits`)."""
+    from inspector.limits import load_json
+
+    if not path.exists():
+        raise InputError(f"{_label(path)}: missing")
+    if not path.is_file():
+        raise InputError(f"{_label(path)}: not a file")
+    return load_json(path, _label(path), InputError)
 
 
 def _nerf_image_path(base: Path, file_path: str) -> Path:

@@ -16,11 +16,16 @@
 2. **Event-loop stall** (target: at most :data:`STALL_TARGET_MS`): a 10 ms precise
    ``QTimer`` ticks in the GUI thread during every inspection; per inspection its worst gap
    (trigger and end of the run included as bounds). Reported: the maximum and the p99 of
-   those worst gaps over the inspections after the warm-up, and the p99 of every gap.
+   those worst gaps over the inspections after the warm-up, and the p99 of every gap; apart,
+   the gap around the drawing of the result (the timer cannot tick inside ``show_result``)
+   and the worst of the other gaps (the run itself: worker thread, stage signals).
 3. **Memory** (target: at most :data:`MEMORY_TARGET_MB` of growth): the resident memory
    (``/proc``) after the first ``first_sample`` (20) inspections and after all
    ``--gui-inspections`` (200) in the same window, and the number of actors in the 3D
-   view's renderer at both points (must stay bounded).
+   view's renderer at both points (must stay bounded). Informative beside it: the growth of
+   the medians of the 10 samples up to each point (RSS swings by tens of MB between
+   inspections), and the growth of the live memory (RSS right after glibc's
+   ``malloc_trim(0)`` at both points: freed memory the allocator kept does not count).
 
 The first inspection in the window is a warm-up and is left out of the figures 1 and 2 (it
 counts in the memory sequence). ``--runs`` inspections after it give figure 1; the
@@ -188,11 +193,18 @@ class _Harness:
         t_end = self.finished_at if self.finished_at is not None else time.perf_counter()
         ticks = [t for t in self.ticks if t <= t_end] + [t_end]
         gaps = [b - a for a, b in zip(ticks, ticks[1:])]
+        # The gap around result_shown is the drawing of the result (the timer cannot tick
+        # inside show_result); the others are the rest of the run (worker, signals, stages).
+        s_at = self.shown_at
+        drawing = [b - a for a, b in zip(ticks, ticks[1:]) if s_at is not None and a <= s_at <= b]
+        other = [b - a for a, b in zip(ticks, ticks[1:]) if s_at is None or not a <= s_at <= b]
         rec.update({
             "trigger_to_shown_s": t_shown - t0,
             "trigger_to_signal_s": (self.shown_at - t0) if self.shown_at is not None else None,
             "trigger_to_end_s": t_end - t0,
             "worst_gap_ms": 1000.0 * max(gaps) if gaps else None,
+            "drawing_gap_ms": 1000.0 * max(drawing) if drawing else None,
+            "worst_other_gap_ms": 1000.0 * max(other) if other else None,
             "gaps_ms": array("d", (1000.0 * g for g in gaps)),
         })
         if self.timed_out and "error" not in rec:
@@ -204,7 +216,7 @@ class _Harness:
         return rec
 
     def timed_show(self, view: Any) -> dict[str, float]:
-        """``show_result(view)`` and one processEvents, timed; the worst tick gap meanwhile."""
+        """``show_result(view)`` (the GUI thread is blocked that long) and one processEvents, timed."""
         self.app.processEvents()
         self.ticks = []
         t0 = time.perf_counter()
@@ -461,13 +473,11 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
                     say(f"  {'warm-up' if i == 1 else f'{i}/{total}'}: {rec['verdict']}, shown "
                         f"{rec['trigger_to_shown_s']:.3f} s after the trigger (cycle {rec['cycle_s']:.3f} s, "
                         f"{rec['points']} points), worst tick gap {rec['worst_gap_ms']:.0f} ms")
-                if i % 10 == 0 or i in (1, first_sample, total):
-                    rss_trace.append((i, bench._rss_mb()))
-                if i == first_sample:
-                    samples["first"] = {"after": i, **_snapshot(app, window)}
-                if i == total:
-                    samples["last"] = {"after": i, **_snapshot(app, window)}
-                    samples["last"]["rss_after_malloc_trim_mb"] = _trimmed_rss()
+                rss_trace.append((i, bench._rss_mb()))
+                if i in (first_sample, total):
+                    # The figure first, then the live memory (glibc's free heap given back).
+                    samples["first" if i == first_sample else "last"] = {
+                        "after": i, **_snapshot(app, window), "rss_after_malloc_trim_mb": _trimmed_rss()}
             loop_s = time.perf_counter() - t_start
             say(f"Drawing cost: show_result with {draw_points} points against the real view ...")
             draw = _draw_cost(harness, harness.view, draw_points, args.runs)
@@ -513,6 +523,14 @@ def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, re
     growth = (last["rss_mb"] - first["rss_mb"]) if first.get("rss_mb") is not None and last.get("rss_mb") is not None \
         else None
     per_inspection_kb = 1000.0 * growth / (last["after"] - first["after"]) if growth is not None else None
+    trimmed = (last["rss_after_malloc_trim_mb"] - first["rss_after_malloc_trim_mb"]) \
+        if first.get("rss_after_malloc_trim_mb") is not None and last.get("rss_after_malloc_trim_mb") is not None else None
+    # RSS swings by tens of MB from one inspection to the next (freed images kept by the
+    # allocator): the medians of the 10 samples up to each point, less noisy (informative).
+    rss = {i: r for i, r in rss_trace if r is not None}
+    win = {k: _median([rss[j] for j in range(max(1, s["after"] - 9), s["after"] + 1) if j in rss])
+           for k, s in (("first", first), ("last", last)) if s}
+    windowed = win["last"] - win["first"] if len(win) == 2 else None
     ticks = {
         "max_ms": stall_max,
         "p99_of_worst_ms": stall_p99,
@@ -520,6 +538,12 @@ def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, re
         "p99_all_gaps_ms": _pct(all_gaps, 99),
         "ticks": len(all_gaps),
         "inspections": len(worst),
+        "max_drawing_ms": max((r["drawing_gap_ms"] for r in after_warmup if r["drawing_gap_ms"] is not None),
+                              default=float("nan")),
+        "max_outside_drawing_ms": max((r["worst_other_gap_ms"] for r in after_warmup
+                                       if r["worst_other_gap_ms"] is not None), default=float("nan")),
+        "p99_outside_drawing_ms": _pct([r["worst_other_gap_ms"] for r in after_warmup
+                                        if r["worst_other_gap_ms"] is not None], 99),
         "worst_inspection": max(after_warmup, key=lambda r: r["worst_gap_ms"])["index"] if after_warmup else None,
         "warmup_worst_gap_ms": records[0]["worst_gap_ms"] if records else None,
         "draw_big_worst_gap_ms": 1000.0 * draw["show_result_call_big_s"]["max"],
@@ -562,6 +586,7 @@ def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, re
         },
         "stall": ticks,
         "memory": {"first": first, "last": last, "growth_mb": growth, "per_inspection_kb": per_inspection_kb,
+                   "growth_after_malloc_trim_mb": trimmed, "growth_of_10_sample_medians_mb": windowed,
                    "rss_trace_mb": [[i, r] for i, r in rss_trace],
                    "actors_bounded": (first.get("actors") == last.get("actors")) if first and last else None},
         "draw": draw,
@@ -603,6 +628,9 @@ def _print_report(doc: dict[str, Any]) -> None:
           f"{st['max_ms']:.0f} ms (inspection {st['worst_inspection']}), p99 of the per-inspection worst "
           f"{st['p99_of_worst_ms']:.0f} ms, median {st['median_of_worst_ms']:.0f} ms; p99 of all "
           f"{st['ticks']} gaps {st['p99_all_gaps_ms']:.0f} ms")
+    print(f"     the gap around the result's drawing (show_result + paint): max {st['max_drawing_ms']:.0f} ms; "
+          f"every other gap of the runs (worker, stages, signals): max {st['max_outside_drawing_ms']:.0f} ms, "
+          f"p99 of the per-inspection worst {st['p99_outside_drawing_ms']:.0f} ms")
     ib, ir = d["idle_ticks_big"], d["idle_ticks_real"]
     print(f"     idle (no inspection, {ib['seconds']:.0f} s): worst gap {ir['max_ms']:.0f} ms with {d['points_real']} points "
           f"on screen, {ib['max_ms']:.0f} ms with {d['points_big']} (median gap {ir['median_ms']:.0f} / "
@@ -613,11 +641,14 @@ def _print_report(doc: dict[str, Any]) -> None:
     if f and la:
         print(f"  3. memory: RSS {f['rss_mb']:.0f} MB after {f['after']} inspections, {la['rss_mb']:.0f} MB after "
               f"{la['after']}: {mem['growth_mb']:+.1f} MB ({mem['per_inspection_kb']:+.0f} kB per inspection)")
-        trace = " ".join(f"{i}:{r:.0f}" for i, r in mem["rss_trace_mb"] if r is not None)
+        every = max(1, len(mem["rss_trace_mb"]) // 20)
+        trace = " ".join(f"{i}:{r:.0f}" for i, r in mem["rss_trace_mb"] if r is not None and (i % every == 0 or i == 1))
         print(f"     RSS (MB) after inspection i: {trace}")
-        if la.get("rss_after_malloc_trim_mb") is not None:
-            print(f"     after malloc_trim(0) at the end (informative: free heap given back): "
-                  f"{la['rss_after_malloc_trim_mb']:.0f} MB")
+        if mem["growth_of_10_sample_medians_mb"] is not None:
+            print(f"     informative: median of the 10 samples up to each point {mem['growth_of_10_sample_medians_mb']:+.1f} MB"
+                  + (f"; live memory (after malloc_trim(0), free heap given back) {f['rss_after_malloc_trim_mb']:.0f} -> "
+                     f"{la['rss_after_malloc_trim_mb']:.0f} MB: {mem['growth_after_malloc_trim_mb']:+.1f} MB"
+                     if mem["growth_after_malloc_trim_mb"] is not None else ""))
         print(f"     3D view actors {f['actors']} -> {la['actors']}, QObjects in the window {f['qobjects_in_window']} -> "
               f"{la['qobjects_in_window']}, Python objects {f['python_objects']} -> {la['python_objects']}")
     print("\n  targets:")

@@ -31,6 +31,7 @@ def test_bench_gui_writes_the_three_figures(qapp, small_capture, tmp_path, capsy
     for value in (t["trigger_to_shown"]["value_s"], t["stall"]["value_ms"], t["stall"]["p99_ms"], t["memory"]["value_mb"]):
         assert isinstance(value, (int, float)) and math.isfinite(value)
     assert t["trigger_to_shown"]["value_s"] > -5.0 and t["stall"]["value_ms"] > 0
+    assert math.isfinite(doc["stall"]["max_drawing_ms"]) and math.isfinite(doc["stall"]["max_outside_drawing_ms"])
     assert doc["config"]["inspections"] == 3 and doc["trigger_to_shown"]["shown_s"]["n"] == 2
     assert doc["memory"]["first"]["after"] == 1 and doc["memory"]["last"]["after"] == 3
     assert doc["memory"]["first"]["actors"] == doc["memory"]["last"]["actors"] > 0

@@ -1,0 +1,80 @@
+"""Capture names: each capture's result folder is ``OUTDIR/<name>/``, so a name is a path.
+
+A capture's name comes from outside (a folder name given on the command line or dropped in
+a hot folder), and it becomes a folder of ``--out``. One rule, :func:`name_problem`, decides
+which names can: the drivers that name captures after folders check it before a capture is
+read (a refused one becomes verdict ``error`` with one line, the others go on), and
+:func:`inspector.outputs.write_result` checks it again, with the resolved path, before it
+writes anything, so no driver (a third party's included) can write outside ``--out``.
+
+Refused: the empty name, ``.`` and ``..``, a path separator (``/``, and ``\\`` which is one
+on Windows shares), control characters (a newline would split the one-line reports), names
+longer than 255 bytes, and the names of what ``OUTDIR`` itself holds (:data:`RESERVED`).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from inspector.errors import CaptureError
+
+__all__ = ["RESERVED", "name_problem", "check_name", "printable", "folder_name"]
+
+#: Entries of OUTDIR that are not result folders: the history database and its SQLite
+#: journal files (a folder of that name disables the history), and the recipes the
+#: operator's editor saves.
+RESERVED = frozenset({"history.sqlite", "history.sqlite-wal", "history.sqlite-shm", "history.sqlite-journal", "recipes"})
+
+# Characters that break a line (str.splitlines splits on some of these) or a terminal, and
+# lone surrogates (undecodable bytes of a file name: printing one raises UnicodeEncodeError).
+_UNPRINTABLE = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
+_MAX_BYTES = 255  # NAME_MAX of every file system the product runs on
+
+
+def name_problem(name: object) -> str | None:
+    """Why ``name`` cannot name a result folder, or None when it can."""
+    if not isinstance(name, str) or not name:
+        return "is empty"
+    if name in (".", ".."):
+        return "is not a folder name"
+    if "/" in name or "\\" in name or (os.sep in name) or (os.altsep and os.altsep in name):
+        return "contains a path separator"
+    if _UNPRINTABLE.search(name):
+        return "contains a control character or bytes that are not UTF-8"
+    if len(name.encode("utf-8")) > _MAX_BYTES:
+        return f"is longer than {_MAX_BYTES} bytes"
+    if name in RESERVED:
+        return f"is reserved in the result folder (OUTDIR/{name} is not a result)"
+    return None
+
+
+def printable(name: object) -> str:
+    """``name`` safe for a one-line message: with a control character or an undecodable
+    byte, written as Python escapes it (``a\\nb``); else unchanged."""
+    text = str(name)
+    return ascii(text)[1:-1] if _UNPRINTABLE.search(text) else text
+
+
+def check_name(name: object, what: str = "capture") -> str:
+    """``name`` when it can name a result folder.
+
+    Raises
+    ------
+    CaptureError
+        One line naming the capture (escaped) and the reason.
+    """
+    problem = name_problem(name)
+    if problem is not None:
+        raise CaptureError(f"{what} name '{printable(name)}' {problem}; rename it")
+    return str(name)
+
+
+def folder_name(folder: str | os.PathLike[str]) -> str:
+    """The name a capture folder gives its capture: the last part of its absolute path,
+    without resolving links (``caps/a/..`` is ``caps``; ``.`` is the current folder's name).
+
+    The same rule as :func:`inspector_drivers.replay.folder.read_capture`'s ``Capture.name``.
+    """
+    return Path(os.path.abspath(folder)).name
