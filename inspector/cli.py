@@ -32,19 +32,10 @@ def _err(msg: str) -> None:
 # -- run -------------------------------------------------------------------------------
 def _load(recipe_path: str, reference: str | None) -> tuple[Any, Any, Any]:
     """Plugin manager, validated recipe and loaded reference (RecipeError on any problem)."""
-    from inspector.manager import create_plugin_manager
-    from inspector.recipe import load_recipe
-    from inspector.reference import Reference
+    from inspector.session import Session
 
-    pm = create_plugin_manager()
-    recipe = load_recipe(recipe_path, pm, reference=reference)
-    ref = None
-    if recipe.reference is not None:
-        try:
-            ref = Reference.load(recipe.reference)
-        except InspectorError as e:
-            raise RecipeError(str(e)) from None
-    return pm, recipe, ref
+    s = Session.open(recipe_path, ".", reference=reference)  # the same loading as every run
+    return s.pm, s.recipe, s.reference
 
 
 def _watch_params(args: argparse.Namespace) -> dict[str, Any] | None:
