@@ -367,21 +367,9 @@ def read_audit(outdir: str | os.PathLike[str], *, last: int | None = None) -> li
     path = _history_path(outdir)
     if not path.is_file():
         raise InputError(f"{path}: no history (the station and inspector run write it in OUTDIR)")
-    try:
-        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
-        try:
-            con.row_factory = sqlite3.Row
-            if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'audit'").fetchone() is None:
-                return []
-            cols = ", ".join(_AUDIT_COLUMNS)
-            q = f"SELECT {cols} FROM audit ORDER BY id"
-            if last is not None:
-                q = f"SELECT * FROM (SELECT {cols} FROM audit ORDER BY id DESC LIMIT {int(last)}) ORDER BY id"
-            return [dict(r) for r in con.execute(q)]
-        finally:
-            con.close()
-    except sqlite3.Error as e:
-        raise InputError(f"{path}: cannot be read ({e})") from None
+    from inspector_plugins.history import read_table
+
+    return read_table(path, "audit", _AUDIT_COLUMNS, last=last) or []
 
 
 # --------------------------------------------------------------------------- the session

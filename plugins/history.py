@@ -27,7 +27,7 @@ from inspector import hookimpl
 from inspector.errors import InputError
 from inspector.model import InspectionResult
 
-__all__ = ["HISTORY_FILE", "SCHEMA", "record", "read_history", "draw_history", "plot_history"]
+__all__ = ["HISTORY_FILE", "SCHEMA", "record", "read_history", "read_table", "tally", "draw_history", "plot_history"]
 
 #: The history database, in the run's OUTDIR (beside the result folders).
 HISTORY_FILE = "history.sqlite"
@@ -150,13 +150,24 @@ def read_history(outdir: Path, *, last: int | None = None) -> list[dict[str, Any
     path = Path(outdir) / HISTORY_FILE
     if not path.is_file():
         raise InputError(f"{path}: no history (inspector run writes it beside the result folders)")
+    return read_table(path, "inspections", last=last) or []
+
+
+def read_table(path: Path, table: str, columns: tuple[str, ...] | None = None, *,
+               last: int | None = None) -> list[dict[str, Any]] | None:
+    """Rows of ``table`` in the SQLite file ``path`` (read-only), oldest first, the ``last``
+    ones only; None when the file has no such table. InputError naming the file when it
+    cannot be read. Shared by the history and the audit trail (``inspector.roles``)."""
+    cols = ", ".join(columns) if columns else "*"
     try:
         con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
         try:
             con.row_factory = sqlite3.Row
-            q = "SELECT * FROM inspections ORDER BY id"
+            if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = ?", (table,)).fetchone() is None:
+                return None
+            q = f"SELECT {cols} FROM {table} ORDER BY id"
             if last is not None:
-                q = f"SELECT * FROM (SELECT * FROM inspections ORDER BY id DESC LIMIT {int(last)}) ORDER BY id"
+                q = f"SELECT * FROM (SELECT {cols} FROM {table} ORDER BY id DESC LIMIT {int(last)}) ORDER BY id"
             return [dict(r) for r in con.execute(q)]
         finally:
             con.close()
@@ -201,6 +212,14 @@ def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
 VERDICT_COLOURS = {"pass": "#2e8b2e", "fail": "#c01010", "error": "#888888"}
 
 
+def tally(rows: list[dict[str, Any]]) -> tuple[dict[str, int], float | None]:
+    """Inspections per verdict (pass, fail, error) and the yield: the passed share of the
+    parts judged (pass or fail); None when none was judged."""
+    n = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "fail", "error")}
+    judged = n["pass"] + n["fail"]
+    return n, (n["pass"] / judged if judged else None)
+
+
 def draw_history(ax: Any, rows: list[dict[str, Any]], *, labels: bool = True) -> str:
     """Draw the trend of ``rows`` on the matplotlib axes ``ax``: per inspection, in order, the
     range of its BCPS deviations (mm) as a bar, green for a pass and red for a fail, its
@@ -228,9 +247,8 @@ def draw_history(ax: Any, rows: list[dict[str, Any]], *, labels: bool = True) ->
     if labels:
         ax.set_xlabel("inspection (oldest first)")
         ax.set_ylabel("BCPS deviation, mm (negative: missing)")
-    n = {v: sum(r["verdict"] == v for r in rows) for v in colour}
-    judged = n["pass"] + n["fail"]
-    yld = f"yield {n['pass'] / judged:.1%}" if judged else "no part judged"
+    n, share = tally(rows)
+    yld = f"yield {share:.1%}" if share is not None else "no part judged"
     title = f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}"
     ax.set_title(title, fontsize=11 if labels else 9)
     if labels and len(rows) <= 30:
@@ -266,9 +284,8 @@ def run(args) -> int:
     for r in rows:
         print(f"{r['inspected_at'][:23]:24s} {r['capture'][:24]:24s} {(r['part_id'] or '-')[:14]:14s} "
               f"{r['verdict'].upper():7s} {r['n_defects']:7d} {_fmt(r['worst_mm'], '+9.3f'):>9s} {_fmt(r['total_s'], '6.2f'):>6s}")
-    n = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "fail", "error")}
-    judged = n["pass"] + n["fail"]
-    yld = f"yield {n['pass'] / judged:.1%} of the parts judged" if judged else "no part judged"
+    n, share = tally(rows)
+    yld = f"yield {share:.1%} of the parts judged" if share is not None else "no part judged"
     span = f", {rows[0]['inspected_at'][:19]} to {rows[-1]['inspected_at'][:19]}" if rows else ""
     print(f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}{span}")
     if args.plot:

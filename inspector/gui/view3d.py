@@ -22,7 +22,6 @@ __all__ = ["DeviationView", "deviation_colormap", "normalised"]
 
 #: The colour scale spans this many tolerance widths on each side.
 SPAN = 3.0
-NEUTRAL = "#d5d8dc"
 BAR = "deviation"
 
 

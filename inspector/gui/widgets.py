@@ -385,7 +385,7 @@ class HistoryStrip(QWidget):
         self.show_rows(rows)
 
     def show_rows(self, rows: list[dict[str, Any]]) -> None:
-        from inspector_plugins.history import draw_history
+        from inspector_plugins.history import draw_history, tally
 
         self.rows = rows
         while self.chips.count():
@@ -401,10 +401,9 @@ class HistoryStrip(QWidget):
             chip.setStyleSheet(f"background: {bg}; color: white; font-size: 13pt; border-radius: 3px;")
             self.chips.addWidget(chip)
         self.chips.addStretch(1)
-        n = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "fail", "error")}
-        judged = n["pass"] + n["fail"]
+        n, share = tally(rows)
         self.yield_label.setText(
-            f"yield {n['pass'] / judged:.1%}  ({n['pass']} pass, {n['fail']} fail, {n['error']} error)" if judged
+            f"yield {share:.1%}  ({n['pass']} pass, {n['fail']} fail, {n['error']} error)" if share is not None
             else ("no part judged yet" if not rows else f"{n['error']} error"))
         self.figure.clear()
         ax = self.figure.add_subplot(111)
