@@ -244,6 +244,9 @@ def draw_history(ax: Any, rows: list[dict[str, Any]], *, labels: bool = True) ->
         ax.step(x, hi, where="mid", color="k", ls="--", lw=1)
         ax.legend(loc="upper right", fontsize=8)
     ax.axhline(0.0, color="#cccccc", lw=0.8, zorder=0)
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # inspections are counted, not measured
     if labels:
         ax.set_xlabel("inspection (oldest first)")
         ax.set_ylabel("BCPS deviation, mm (negative: missing)")

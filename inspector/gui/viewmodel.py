@@ -16,7 +16,7 @@ import numpy as np
 
 from inspector.errors import InputError
 
-__all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text", "aborted_view"]
+__all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text"]
 
 #: Thumbnails are at most this many pixels on their longer side.
 THUMB_PX = 192
@@ -341,7 +341,3 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
         stats=stats,
     )
 
-
-def aborted_view(capture: str, reason: str, cycle_s: float | None = None) -> ResultView:
-    """An inspection cancelled between stages: nothing was measured, nothing written."""
-    return ResultView(capture=capture, verdict="aborted", reason=reason, error=reason, cycle_s=cycle_s)

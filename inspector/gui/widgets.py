@@ -157,12 +157,10 @@ class DefectTable(QTableWidget):
         self.verticalHeader().setDefaultSectionSize(34)  # touch-size rows
         self.setAccessibleName("defect table")
         self.itemSelectionChanged.connect(self._selected)
-        self._rows: tuple = ()
 
     def show_result(self, view: ResultView) -> None:
         self.blockSignals(True)
         self.clearSelection()
-        self._rows = view.defects
         self.setRowCount(len(view.defects))
         for r, d in enumerate(view.defects):
             kind = "missing material" if d.kind == "missing" else "excess material"
@@ -282,9 +280,6 @@ class CameraStrip(QWidget):
     def highlight(self, names: tuple[str, ...] | list[str]) -> None:
         for n, tile in self.tiles.items():
             tile.set_highlighted(n in names)
-
-    def flagged(self) -> list[str]:
-        return [n for n, t in self.tiles.items() if t.thumb.flags]
 
 
 class _ZoomView(QGraphicsView):
