@@ -246,7 +246,8 @@ def draw_history(ax: Any, rows: list[dict[str, Any]], *, labels: bool = True) ->
     ax.axhline(0.0, color="#cccccc", lw=0.8, zorder=0)
     from matplotlib.ticker import MaxNLocator
 
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # inspections are counted, not measured
+    ax.set_xlim(-0.5, max(len(rows), 1) - 0.5)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))  # inspections are counted, not measured
     if labels:
         ax.set_xlabel("inspection (oldest first)")
         ax.set_ylabel("BCPS deviation, mm (negative: missing)")
