@@ -30,3 +30,23 @@ clean:
 .PHONY: acceptance
 acceptance: $(STAMP)
 	$(PY) tests/acceptance/run_matrix.py --work out/acceptance --out-md docs/acceptance.md
+
+# Pose sweep (issue 14): near-symmetric parts x scale errors x random poses x rigs of 16, 12
+# and 8 cameras, summary per part and rig between markers in docs/acceptance.md. Resumable:
+# captures are cached, and inspections and measurements of an unchanged product are reused
+# (--resume), so an interrupted run continues. Override any POSE_* variable for a subset, e.g.
+#   make pose-sweep POSE_PARTS=flange POSE_SCALES=1.00 POSE_POSES=1 POSE_CAMERAS=8
+POSE_PARTS   ?= flange hub keyshaft flatshaft gear disc5
+POSE_SCALES  ?= 0.97 0.98 1.00 1.02
+POSE_POSES   ?= 3
+POSE_CAMERAS ?= 16 12 8
+POSE_JOBS    ?= 1
+POSE_BATCH   ?= 4
+POSE_WORK    ?= out/pose_sweep
+POSE_MD      ?= docs/acceptance.md
+.PHONY: pose-sweep acceptance-pose
+pose-sweep: $(STAMP)
+	$(PY) tests/acceptance/pose_sweep.py --parts $(POSE_PARTS) --scales $(POSE_SCALES) --poses $(POSE_POSES) \
+		--cameras $(POSE_CAMERAS) --jobs $(POSE_JOBS) --batch $(POSE_BATCH) --work $(POSE_WORK) --resume \
+		--md-section $(POSE_MD)
+acceptance-pose: pose-sweep

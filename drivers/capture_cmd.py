@@ -19,12 +19,8 @@ Exit status: 0 every trigger was written; 2 invalid command, recipe or parameter
 acquired); 3 the driver could not be opened, or at least one trigger failed (the others are
 written, each failure is one line naming the camera).
 
-Wiring (in ``inspector/cli.py``)::
-
-    from inspector_drivers import capture_cmd
-    capture_cmd.add_parser(sub)                    # in build_parser()
-    if args.command == "capture":                  # in main()
-        return capture_cmd.run(args)
+A built-in plugin (entry point ``capture``): the command is registered through
+``inspector_register_commands`` like any plugin's.
 """
 
 from __future__ import annotations
@@ -35,7 +31,13 @@ import sys
 import time
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from inspector import hookimpl
+
+if TYPE_CHECKING:
+    from inspector.manager import PluginManager
+    from inspector.registry import CommandRegistry
 
 __all__ = ["add_parser", "run", "parse_param", "driver_table"]
 
@@ -113,10 +115,11 @@ def _write(out: Path, cap: Any) -> Path:
     return save_capture(cap, out / cap.name)
 
 
-def run(args: argparse.Namespace, pm: Any = None) -> int:
+def run(args: argparse.Namespace, pm: PluginManager | None = None) -> int:
     """Run ``inspector capture``; returns the exit status (errors are one line on stderr).
 
-    ``pm``: a plugin manager (default: :func:`inspector.manager.create_plugin_manager`).
+    ``pm``: a plugin manager (default: the command line's, ``args.plugin_manager``, else
+    :func:`inspector.manager.create_plugin_manager`).
     """
     import dataclasses
 
@@ -127,6 +130,7 @@ def run(args: argparse.Namespace, pm: Any = None) -> int:
     driver = None
     written = failed = 0
     try:
+        pm = pm or getattr(args, "plugin_manager", None)
         if pm is None:
             from inspector.manager import create_plugin_manager
 
@@ -199,3 +203,10 @@ def run(args: argparse.Namespace, pm: Any = None) -> int:
         _err("the driver gave no capture")
         return EXIT_ERROR
     return EXIT_ERROR if failed else EXIT_OK
+
+
+@hookimpl
+def inspector_register_commands(registry: CommandRegistry) -> None:
+    from inspector.registry import CommandSpec
+
+    registry.add(CommandSpec("capture", add_parser, run, "live triggers of any driver -> capture folders (replayable)"))

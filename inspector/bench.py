@@ -58,7 +58,15 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from inspector import hookimpl
+
+if TYPE_CHECKING:
+    from inspector.manager import PluginManager
+    from inspector.recipe import Recipe
+    from inspector.reference import Reference
+    from inspector.registry import CommandRegistry
 
 __all__ = [
     "CYCLE_TARGET_S",
@@ -88,7 +96,9 @@ _MB = 1e6
 
 
 def _recipes_dir() -> Path:
-    return Path(__file__).resolve().parent.parent / "recipes"
+    from inspector.resources import recipes_dir
+
+    return recipes_dir()
 
 
 def _maxrss_mb() -> float | None:
@@ -120,7 +130,7 @@ def _machine() -> dict[str, Any]:
     except (OSError, AttributeError):  # pragma: no cover
         load = None
     try:
-        usable = len(os.sched_getaffinity(0))
+        usable: int | None = len(os.sched_getaffinity(0))
     except AttributeError:  # pragma: no cover
         usable = os.cpu_count()
     return {
@@ -206,7 +216,7 @@ def compile_kernels(recipe_path: str, reference: str | None, folder: Path, outdi
     return {"seconds": time.perf_counter() - t0, "exit": proc.returncode}
 
 
-def bench_cycles(recipe: Any, reference: Any, pm: Any, folder: Path, outdir: Path, runs: int,
+def bench_cycles(recipe: Recipe, reference: Reference | None, pm: PluginManager, folder: Path, outdir: Path, runs: int,
                  progress: Any = None) -> dict[str, Any]:
     """Inspect ``folder`` ``1 + runs`` times with :func:`run_batch` (first run = warm-up).
 
@@ -250,7 +260,8 @@ def bench_cycles(recipe: Any, reference: Any, pm: Any, folder: Path, outdir: Pat
             mem["increase_timed_mb"] = mem["maxrss_after_mb"] - mem["maxrss_after_warmup_mb"]
     stages: dict[str, dict[str, float]] = {}
     if records:
-        names = [k for k in records[0]["timings_s"] if k not in ("total", "outputs")] + ["outputs", "total"]
+        names = [k for k in records[0]["timings_s"] if k not in ("total", "outputs") and not k.startswith("hook:")]
+        names += ["outputs", "total"]  # lifecycle hooks' times ("hook:PLUGIN:HOOK") are not stages
         for name in names:
             vals = [r["timings_s"][name] for r in records if name in r["timings_s"]]
             if vals:
@@ -311,7 +322,10 @@ def compare_carving(capture: Any, recipe: Any, *, carve_voxel: float, open3d_vox
     bounds = np.asarray(default_bounds(cams, masks, open_border=border), float)
     out["bounds_mm"] = bounds.tolist()
 
-    times, no_mesh, st, recon = [], [], {}, None
+    times: list[float] = []
+    no_mesh: list[float] = []
+    st: dict[str, Any] = {}
+    recon = None
     for _ in range(max(carve_runs, 1)):
         t = time.perf_counter()
         recon = carve(cams, masks, voxel_mm=carve_voxel, bounds=bounds, open_border=border, stats=st)
@@ -582,12 +596,14 @@ def run(args: argparse.Namespace) -> int:
         from inspector.gui.bench import run_gui_bench
 
         return run_gui_bench(args)
-    from inspector.cli import _load
+    from inspector.session import Session
 
     _check(args)
     machine = _machine()
     say = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
-    pm, recipe, ref = _load(args.recipe, args.reference or _default_reference(args.recipe, args.part))
+    session = Session.open(args.recipe, ".", reference=args.reference or _default_reference(args.recipe, args.part),
+                           pm=getattr(args, "plugin_manager", None))
+    pm, recipe, ref = session.pm, session.recipe, session.reference
 
     with tempfile.TemporaryDirectory(prefix="inspector-bench-") as tmp:
         work = Path(args.keep) if args.keep else Path(tmp)
@@ -625,7 +641,7 @@ def run(args: argparse.Namespace) -> int:
                                   carve_runs=args.carve_runs, use_open3d=not args.no_open3d,
                                   open3d_max_gb=args.open3d_max_gb, progress=say)
     acquisition = acquisition_latency(args.acquisition, args.triggers, progress=say) if args.acquisition else None
-    doc = {
+    doc: dict[str, Any] = {
         "acquisition": acquisition,
         "config": {
             "recipe": str(args.recipe), "recipe_name": recipe.name, "reference": recipe.reference, "capture": cap_info,
@@ -699,3 +715,12 @@ def _json_default(o: Any) -> Any:
     except ImportError:  # pragma: no cover
         pass
     return repr(o)
+
+
+# --------------------------------------------------------------------------- plugin
+@hookimpl
+def inspector_register_commands(registry: CommandRegistry) -> None:
+    """``inspector bench``: a built-in plugin (entry point ``bench``), like any command."""
+    from inspector.registry import CommandSpec
+
+    registry.add(CommandSpec("bench", add_parser, run, "cycle time per stage, memory, carving vs Open3D"))

@@ -3,38 +3,54 @@
 Exit status of ``inspector run`` (CONTRACT): 0 every part passed; 1 at least one part
 failed its tolerances; 2 the command or the recipe is invalid (nothing inspected); 3 at
 least one capture could not be inspected. Errors are one line on stderr, never a traceback.
+
+The core commands are defined here (``run``, ``plugins``, ``plugin new``, ``recipe check``,
+``report``, ``roles``); every other one is registered by a plugin through
+``inspector_register_commands`` (as datasette's ``register_commands``), the built-in ones
+included: ``simulate`` and ``demo`` (plugin ``sim``), ``capture``, ``import``, ``history``,
+``bench``, ``experiment``, ``gui``. So this module imports no driver, no built-in plugin
+and no GUI. Global options, before the command: ``--block NAME`` (as
+``INSPECTOR_BLOCK_PLUGINS``) and ``--plugin FILE.py`` (a local module loaded as a plugin, for
+development; recipes can never load code).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from inspector.errors import InspectorError, RecipeError
+from inspector.errors import InspectorError, PluginError, RecipeError
 
-__all__ = ["main"]
+if TYPE_CHECKING:
+    from inspector.manager import PluginManager
+    from inspector.recipe import Recipe
+    from inspector.reference import Reference
+
+__all__ = ["main", "build_parser", "run_recipe", "CORE_COMMANDS", "EXIT_OK", "EXIT_FAIL", "EXIT_INVALID", "EXIT_ERROR"]
 
 EXIT_OK, EXIT_FAIL, EXIT_INVALID, EXIT_ERROR = 0, 1, 2, 3
 
 
-def _recipes_dir() -> Path:
-    return Path(__file__).resolve().parent.parent / "recipes"
-
-
-def _err(msg: str) -> None:
+def err(msg: str) -> None:
+    """Print one error line on stderr: ``inspector: error: MSG``."""
     print(f"inspector: error: {msg}", file=sys.stderr)
 
 
+_err = err
+
+
 # -- run -------------------------------------------------------------------------------
-def _load(recipe_path: str, reference: str | None) -> tuple[Any, Any, Any]:
+def _load(recipe_path: str, reference: str | None,
+          pm: PluginManager | None = None) -> tuple[PluginManager, Recipe, Reference | None]:
     """Plugin manager, validated recipe and loaded reference (RecipeError on any problem)."""
     from inspector.session import Session
 
-    s = Session.open(recipe_path, ".", reference=reference)  # the same loading as every run
+    s = Session.open(recipe_path, ".", reference=reference, pm=pm)  # the same loading as every run
     return s.pm, s.recipe, s.reference
 
 
@@ -52,13 +68,14 @@ def _watch_params(args: argparse.Namespace) -> dict[str, Any] | None:
     return {"folder": args.watch, "count": args.count or 0, "idle_exit_s": args.idle_exit or 0.0}
 
 
-def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: str | None, quiet: bool,
-         watch: dict[str, Any] | None = None) -> int:
-    """``inspector run``: a :class:`~inspector.session.Session` whose events are printed."""
+def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, reference: str | None, quiet: bool,
+               watch: dict[str, Any] | None = None, csv: bool = False, pm: PluginManager | None = None) -> int:
+    """``inspector run``: a :class:`~inspector.session.Session` whose events are printed;
+    returns the exit status (CONTRACT). ``pm``: the plugin manager (default: a new one)."""
     from inspector.outputs import one_line
     from inspector.session import Inspected, RunStarted, Session, Source, Warned
 
-    session = Session.open(recipe_path, out, reference=reference)
+    session = Session.open(recipe_path, out, reference=reference, csv=csv, pm=pm)
 
     def show(event: object) -> None:
         # Only the verdicts are kept (the summary counts them): a live driver or a long batch
@@ -71,7 +88,7 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
                 of = f"/{event.total}" if event.total else ""
                 print(f"[{event.index}{of}] {one_line(result)}", flush=True)
             elif result.verdict == "error":  # no progress lines, but no silent error
-                _err(f"{result.capture}: {result.error}")
+                err(f"{result.capture}: {result.error}")
         elif isinstance(event, Warned):
             print(f"inspector: warning: {event.capture}: {event.text}", file=sys.stderr, flush=True)
 
@@ -94,170 +111,7 @@ def _run(recipe_path: str, captures: Sequence[str] | None, out: str, reference: 
     return summary.exit_status
 
 
-# -- simulate --------------------------------------------------------------------------
-def _parse_bump(text: str) -> dict[str, Any]:
-    parts = [p.strip() for p in text.split(",")]
-    try:
-        if len(parts) not in (4, 5):
-            raise ValueError
-        x, y, z, r = (float(v) for v in parts[:4])
-    except ValueError:
-        raise RecipeError(f"--bump {text!r}: expected X,Y,Z,RADIUS[,add|remove]") from None
-    kind = parts[4] if len(parts) == 5 else "remove"
-    if kind not in ("add", "remove"):
-        raise RecipeError(f"--bump {text!r}: kind must be add or remove")
-    return {"at": [x, y, z], "radius_mm": r, "kind": kind}
-
-
-def _add_param_options(parser: argparse.ArgumentParser, cls: type, skip: set[str]) -> None:
-    """One ``--option`` per parameter of ``cls`` (types and docs from the dataclass)."""
-    from inspector.params import describe_params
-
-    for d in describe_params(cls):
-        if d["name"] in skip:
-            continue
-        flag = "--" + d["name"].replace("_", "-")
-        if d["type"] == "bool":
-            parser.add_argument(flag, action="store_true", default=None, help=d["doc"])
-        elif d["type"].startswith("list of"):
-            parser.add_argument(flag, type=float, nargs="+", default=None, help=d["doc"])
-        else:
-            conv = {"int": int, "float": float}.get(d["type"], str)
-            if d["type"] == "8 | 16":
-                conv = int
-            parser.add_argument(flag, type=conv, default=None, help=f"{d['doc']} (default {d['default']!r})")
-
-
-def _simulate(args: argparse.Namespace) -> int:
-    from inspector.params import build_params, describe_params
-    from inspector_drivers.replay.folder import save_capture
-    from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
-
-    table = {d["name"]: getattr(args, d["name"]) for d in describe_params(SimParams) if getattr(args, d["name"], None) is not None}
-    if args.bump:
-        table["bumps"] = [_parse_bump(b) for b in args.bump]
-    if "dist" in table:
-        table["dist"] = list(table["dist"])
-    p = build_params(SimParams, table, "simulate")
-    out = Path(args.out)
-    rig = sim_rig(p)
-    for i in range(p.count):
-        folder = save_capture(cap := simulate(p, i, rig), out / cap.name, overwrite=True)
-        print(f"[{i + 1}/{p.count}] wrote {folder}", flush=True)
-    return EXIT_OK
-
-
-# -- demo ------------------------------------------------------------------------------
-def _demo(args: argparse.Namespace) -> int:
-    """Simulate a good and a notched cube, inspect both with recipes/demo.toml."""
-    from inspector.outputs import read_ply
-    from inspector.params import build_params
-    from inspector_drivers.replay.folder import save_capture
-    from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
-
-    out = Path(args.out)
-    cap_dir = out / "captures"
-    print(f"Simulating the 16-camera rig (1024x1024, 0.1 mm/px) into {cap_dir} ...", flush=True)
-    cases = [
-        ("cube-good", {"part": "cube30", "seed": 11}),
-        ("cube-notched", {"part": "cube30", "seed": 12, "bumps": [{"at": [15.0, 15.0, 0.0], "radius_mm": 1.5, "kind": "remove"}]}),
-    ]
-    rig = None
-    for name, table in cases:
-        p = build_params(SimParams, table, "demo")
-        rig = rig or sim_rig(p)
-        save_capture(simulate(p, 0, rig, name=name), cap_dir / name, overwrite=True)
-        print(f"  {name}: {'1.5 mm notch removed on an edge' if 'bumps' in table else 'as the reference'}")
-    recipe = str(_recipes_dir() / "demo.toml")
-    print(f"Inspecting with {recipe} ...", flush=True)
-    status = _run(recipe, [str(cap_dir)], str(out / "results"), None, quiet=False)
-    for name, _ in cases:
-        res = json.loads((out / "results" / name / "result.json").read_text())
-        print(f"\n{name}: verdict {res['verdict'].upper()}")
-        if res["verdict"] == "error":
-            print(f"  {res['error']}")
-            continue
-        s = res["stats"]
-        d = s["deviation_mm"]
-        print(f"  {s['n_points']} BCPS points; deviation mean {d['mean']:+.4f} mm, min {d['min']:+.4f}, max {d['max']:+.4f}; "
-              f"{100 * s['within_tolerance']:.2f} % within ±{s['tolerance_mm']['upper']} mm")
-        if "truth" in s and "bcps" in s["truth"]:
-            t = s["truth"]["bcps"]
-            print(f"  accuracy vs. truth: BCPS mean {t['mean_mm']:.4f} mm ({t['mean_px']:.3f} px), p99 {t['p99_mm']:.4f} mm; "
-                  f"raw reconstruction mean {s['truth']['reconstruction']['mean_mm']:.4f} mm")
-        for dfc in res["defects"]:
-            pos = ", ".join(f"{x:.1f}" for x in dfc["position"])
-            print(f"  defect: {dfc['kind']} material at ({pos}) mm, {dfc['n_points']} points, worst {dfc['worst_mm']:+.3f} mm")
-        pts = read_ply(out / "results" / name / "bcps_points.ply")
-        from inspector.report import render_report
-
-        png = render_report(out / "results" / name)
-        print(f"  outputs: {out / 'results' / name} (result.json, bcps_points.ply [{len(pts['x'])} pts], reconstruction.ply, {png.name})")
-    expected = {"cube-good": "pass", "cube-notched": "fail"}
-    got = {name: json.loads((out / "results" / name / "result.json").read_text())["verdict"] for name in expected}
-    if got != expected:
-        _err(f"demo verdicts {got}, expected {expected}")
-        return EXIT_ERROR
-    print(f"\nhistory: {out / 'results' / 'history.sqlite'} (inspector history {out / 'results'})")
-    print("\nDemo OK: the good cube passes, the notched cube fails with its defect located.")
-    return EXIT_OK if status in (EXIT_OK, EXIT_FAIL) else status
-
-
-# -- plugins / recipe check -------------------------------------------------------------
-def _plugins(args: argparse.Namespace) -> int:
-    from inspector.manager import create_plugin_manager
-    from inspector.params import describe_params
-
-    pm = create_plugin_manager()
-    doc: dict[str, Any] = {"plugins": pm.plugin_names(), "stages": {}, "drivers": {}}
-    for kind, reg in (("stages", pm.stages), ("drivers", pm.drivers)):
-        for name in reg.names():
-            spec = reg[name]
-            doc[kind][name] = {"doc": spec.doc, "params": describe_params(spec.params)}
-            if kind == "stages":
-                doc[kind][name]["requires"] = list(spec.requires)
-    if args.json:
-        print(json.dumps(doc, indent=2, default=repr))
-        return EXIT_OK
-    print("plugins: " + ", ".join(doc["plugins"]))
-    for kind in ("stages", "drivers"):
-        print(f"\n{kind.upper()}")
-        for name, d in doc[kind].items():
-            req = f"  (after: {', '.join(d['requires'])})" if d.get("requires") else ""
-            print(f"  {name}: {d['doc']}{req}")
-            for prm in d["params"]:
-                print(f"      {prm['name']} ({prm['type']}, default {prm['default']!r}): {prm['doc']}")
-    if args.parts:
-        from inspector.parts import BUILTIN_PARTS
-
-        print("\nBUILT-IN PARTS (reference = \"builtin:NAME\")")
-        for name, desc in BUILTIN_PARTS.items():
-            print(f"  {name}: {desc}")
-    return EXIT_OK
-
-
-def _recipe_check(args: argparse.Namespace) -> int:
-    _, recipe, ref = _load(args.recipe, args.reference)
-    steps = " -> ".join(f"{s.name} ({s.spec.name})" for s in recipe.steps)
-    print(f"{args.recipe}: OK: recipe {recipe.name!r}, driver {recipe.driver.spec.name}, stages {steps}; reference {recipe.reference or 'none'}")
-    return EXIT_OK
-
-
-# -- entry point -----------------------------------------------------------------------
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit 2 (CONTRACT)
-        self.print_usage(sys.stderr)
-        _err(message)
-        raise SystemExit(EXIT_INVALID)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    from inspector import __version__
-
-    ap = _Parser(prog="inspector", description="3D quality inspection from the silhouettes of a multi-camera rig (BCPS).")
-    ap.add_argument("--version", action="version", version=f"inspector {__version__}")
-    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
+def _add_run(sub: argparse._SubParsersAction[Any]) -> None:
     r = sub.add_parser("run", help="inspect captures with a recipe (batch, one process)")
     r.add_argument("recipe", help="recipe TOML file")
     src = r.add_mutually_exclusive_group()
@@ -268,119 +122,290 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, metavar="OUTDIR", help="result folder (one sub-folder per capture)")
     r.add_argument("--reference", metavar="MESH", help="reference mesh (STL/PLY/OBJ in mm, or builtin:NAME); replaces the recipe's")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress lines (capture errors are still printed, on stderr)")
+    r.add_argument("--csv", action="store_true",
+                   help="also write bcps_points.csv (per-point deviations) and regions.csv (per-region summary) "
+                        "in each result folder (as the recipe's [outputs] csv = true)")
 
-    d = sub.add_parser("demo", help="simulate a good and a defective cube and inspect them")
-    d.add_argument("--out", default="out/demo", help="where captures and results go (default out/demo)")
 
-    s = sub.add_parser("simulate", help="write simulated capture folders")
-    s.add_argument("--out", required=True, help="folder that receives one capture folder per capture")
-    s.add_argument("--bump", action="append", metavar="X,Y,Z,R[,KIND]", help="a bump in the part's frame (kind add|remove, default remove); repeatable")
-    from inspector_drivers.sim.simulate import SimParams
+def _run_command(args: argparse.Namespace) -> int:
+    return run_recipe(args.recipe, args.capture, args.out, args.reference, args.quiet,
+                      watch=_watch_params(args), csv=args.csv, pm=args.plugin_manager)
 
-    _add_param_options(s, SimParams, skip={"bumps"})
 
-    from inspector import experiment
-
-    experiment.add_parser(sub)
-    from inspector_drivers.replay import importers
-
-    importers.add_parser(sub)
-    from inspector import report
-
-    report.add_parser(sub)
-    from inspector import bench
-
-    bench.add_parser(sub)
-    from inspector_plugins import history
-
-    history.add_parser(sub)
-    from inspector_drivers import capture_cmd
-
-    capture_cmd.add_parser(sub)
-    from inspector import roles
-
-    roles.add_parser(sub)
-    # The GUI's parser only: Qt is imported when `inspector gui` runs, never for other commands.
-    from inspector.gui import app as gui_app
-
-    gui_app.add_parser(sub)
-
-    pl = sub.add_parser("plugins", help="list stages and drivers with their parameters")
+# -- plugins / plugin new / recipe check ---------------------------------------------------
+def _add_plugins(sub: argparse._SubParsersAction[Any]) -> None:
+    pl = sub.add_parser("plugins", help="the plugins (distribution, version, what each provides, blocked or not), "
+                                        "stages and drivers with their parameters")
     pl.add_argument("--json", action="store_true", help="machine-readable output")
     pl.add_argument("--parts", action="store_true", help="also list the built-in parts")
+    pl.add_argument("--reference", nargs="?", const="-", metavar="OUT.md",
+                    help="write the plugin author's reference (hooks, public API, registries) as Markdown "
+                         "to OUT.md (default: stdout), what docs/plugins.md is")
 
+
+def _plugins(args: argparse.Namespace) -> int:
+    from inspector.params import describe_params
+
+    pm: PluginManager = args.plugin_manager
+    if args.reference is not None:
+        from inspector.plugin_docs import reference_markdown
+
+        text = reference_markdown()
+        if args.reference == "-":
+            sys.stdout.write(text)
+        else:
+            Path(args.reference).write_text(text, encoding="utf-8")
+            print(f"wrote {args.reference}")
+        return EXIT_OK
+    from inspector import API_VERSION, __version__
+
+    doc: dict[str, Any] = {"inspector": __version__, "api_version": API_VERSION,
+                           "plugins": pm.plugin_names(), "plugin_info": pm.plugins(), "blocked": list(pm.blocked),
+                           "stages": {}, "drivers": {}, "commands": {}, "settings": {},
+                           "problems": [p.message() for p in pm.problems]}  # also warned on stderr
+    for kind, reg in (("stages", pm.stages), ("drivers", pm.drivers), ("settings", pm.settings)):
+        for name in reg.names():
+            spec = reg[name]
+            doc[kind][name] = {"doc": spec.doc, "plugin": reg.owner(name), "params": describe_params(spec.params)}
+            if kind == "stages":
+                doc[kind][name]["requires"] = list(spec.requires)
+    for name in pm.commands.names():
+        doc["commands"][name] = {"doc": pm.command(name).doc, "plugin": pm.commands.owner(name)}
+    if args.json:
+        print(json.dumps(doc, indent=2, default=repr))
+        return EXIT_OK
+    print(f"inspector {__version__}, plugin API {API_VERSION}")
+    print("\nPLUGINS")
+    for row in doc["plugin_info"]:
+        where = f"file {row['file']}" if row["file"] else f"{row['dist'] or 'from code'} {row['version'] or ''}".strip()
+        state = "" if row["status"] == "loaded" else f"  [{row['status'].upper()}]"
+        builtin = ", built-in" if row["builtin"] else ""
+        what = "; ".join(f"{kind}{'s' if len(names) > 1 and kind != 'settings' else ''} {', '.join(names)}"
+                         for kind, names in row["provides"].items() if names)
+        print(f"  {row['name']} ({where}{builtin}){state}: {what or 'nothing'}")
+        for problem in row["problems"]:
+            print(f"      ! {problem}")
+    for kind in ("stages", "drivers"):
+        print(f"\n{kind.upper()}")
+        for name, d in doc[kind].items():
+            req = f"  (after: {', '.join(d['requires'])})" if d.get("requires") else ""
+            print(f"  {name}: {d['doc']}{req}")
+            for prm in d["params"]:
+                print(f"      {prm['name']} ({prm['type']}, default {prm['default']!r}): {prm['doc']}")
+    if doc["settings"]:
+        print("\nPLUGIN SETTINGS (a recipe's [plugins.NAME] table)")
+        for name, d in doc["settings"].items():
+            print(f"  [plugins.{name}]: {d['doc']}")
+            for prm in d["params"]:
+                print(f"      {prm['name']} ({prm['type']}, default {prm['default']!r}): {prm['doc']}")
+    print("\nCOMMANDS (from plugins)")
+    for name, d in doc["commands"].items():
+        print(f"  inspector {name}: {d['doc']}  (plugin {d['plugin']})")
+    if args.parts:
+        from inspector.parts import BUILTIN_PARTS
+
+        print("\nBUILT-IN PARTS (reference = \"builtin:NAME\")")
+        for name, desc in BUILTIN_PARTS.items():
+            print(f"  {name}: {desc}")
+    return EXIT_OK
+
+
+def _add_plugin(sub: argparse._SubParsersAction[Any]) -> None:
+    from inspector.scaffold import add_arguments
+
+    pg = sub.add_parser("plugin", help="plugin author's tools: `inspector plugin new NAME` writes a plugin package")
+    psub = pg.add_subparsers(dest="plugin_command", required=True, parser_class=_Parser)
+    add_arguments(psub.add_parser("new", help="write a complete plugin package (pyproject, stage, driver, hook, "
+                                              "tests, README) that installs and passes its tests at once"))
+
+
+def _plugin_command(args: argparse.Namespace) -> int:
+    from inspector.scaffold import run
+
+    return run(args)
+
+
+def _add_recipe(sub: argparse._SubParsersAction[Any]) -> None:
     rc = sub.add_parser("recipe", help="recipe tools")
     rsub = rc.add_subparsers(dest="recipe_command", required=True, parser_class=_Parser)
     chk = rsub.add_parser("check", help="validate a recipe without running it")
     chk.add_argument("recipe")
     chk.add_argument("--reference", metavar="MESH")
+
+
+def _recipe_check(args: argparse.Namespace) -> int:
+    _, recipe, _ref = _load(args.recipe, args.reference, args.plugin_manager)
+    steps = " -> ".join(f"{s.name} ({s.spec.name})" for s in recipe.steps)
+    print(f"{args.recipe}: OK: recipe {recipe.name!r}, driver {recipe.driver.spec.name}, stages {steps}; reference {recipe.reference or 'none'}")
+    return EXIT_OK
+
+
+def _add_report(sub: argparse._SubParsersAction[Any]) -> None:
+    from inspector import report
+
+    report.add_parser(sub)
+
+
+def _report(args: argparse.Namespace) -> int:
+    from inspector import report
+
+    return report.run(args)
+
+
+def _add_roles(sub: argparse._SubParsersAction[Any]) -> None:
+    from inspector import roles
+
+    roles.add_parser(sub)
+
+
+def _roles(args: argparse.Namespace) -> int:
+    from inspector import roles
+
+    return roles.run(args)
+
+
+#: The core's own commands: name -> (add_parser, run). Every other command comes from a
+#: plugin (``inspector_register_commands``); a plugin cannot take one of these names.
+CORE_COMMANDS: dict[str, tuple[Callable[[argparse._SubParsersAction[Any]], None], Callable[[argparse.Namespace], int]]] = {
+    # run functions looked up when called (a test may replace one)
+    "run": (_add_run, lambda args: _run_command(args)),
+    "plugins": (_add_plugins, lambda args: _plugins(args)),
+    "plugin": (_add_plugin, lambda args: _plugin_command(args)),
+    "recipe": (_add_recipe, lambda args: _recipe_check(args)),
+    "report": (_add_report, lambda args: _report(args)),
+    "roles": (_add_roles, lambda args: _roles(args)),
+}
+
+
+# -- entry point -----------------------------------------------------------------------
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # type: ignore[override]  # one line, exit 2 (CONTRACT)
+        self.print_usage(sys.stderr)
+        err(message)
+        raise SystemExit(EXIT_INVALID)
+
+
+def _global_options(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """``--block`` names (comma-separated, repeatable) and ``--plugin`` files given before the
+    command, read before the plugin manager that builds the parser exists."""
+    block: list[str] = []
+    files: list[str] = []
+    i = 0
+    while i < len(argv):
+        tok = argv[i]
+        if not tok.startswith("-"):
+            break  # the command: what follows is its own
+        for flag, into in (("--block", block), ("--plugin", files)):
+            if tok == flag and i + 1 < len(argv):
+                into.append(argv[i + 1])
+                i += 1
+            elif tok.startswith(flag + "="):
+                into.append(tok.split("=", 1)[1])
+        i += 1
+    names = [n.strip() for b in block for n in b.split(",") if n.strip()]
+    return names, files
+
+
+def plugin_manager_for(argv: Sequence[str]) -> PluginManager:
+    """The plugin manager a command line asks for: every installed plugin, less the
+    ``--block`` ones and ``$INSPECTOR_BLOCK_PLUGINS``, plus the ``--plugin`` files.
+
+    Raises
+    ------
+    PluginError
+        A ``--plugin`` file that is missing or broken (one line naming it).
+    """
+    from inspector.manager import BLOCK_ENV, create_plugin_manager
+
+    block, files = _global_options(argv)
+    env = [b.strip() for b in os.environ.get(BLOCK_ENV, "").split(",") if b.strip()]
+    return create_plugin_manager(block=[*env, *block], files=files)
+
+
+def build_parser(pm: PluginManager | None = None) -> argparse.ArgumentParser:
+    """The whole command line: the core commands, then each plugin's (``pm``: default a
+    new plugin manager). A plugin command that takes a core command's name, or whose
+    ``add_parser`` raises or adds no sub-parser of its name, is left out with one warning
+    naming the plugin."""
+    from inspector import API_VERSION, __version__
+
+    if pm is None:
+        from inspector.manager import create_plugin_manager
+
+        pm = create_plugin_manager()
+    ap = _Parser(prog="inspector", description="3D quality inspection from the silhouettes of a multi-camera rig (BCPS).")
+    ap.add_argument("--version", action="version", version=f"inspector {__version__} (plugin API {API_VERSION})")
+    ap.add_argument("--block", action="append", default=[], metavar="NAME",
+                    help="do not load plugin NAME (an entry-point name; comma-separated or repeated), "
+                         "as INSPECTOR_BLOCK_PLUGINS=NAME")
+    ap.add_argument("--plugin", action="append", default=[], metavar="FILE.py",
+                    help="also load this local module as a plugin (development; repeatable)")
+    sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for add, _ in CORE_COMMANDS.values():
+        add(sub)
+    for name in pm.commands.names():
+        owner = pm.commands.owner(name) or "?"
+        who = pm.info(owner).label()
+        if name in CORE_COMMANDS:
+            print(f"inspector: warning: {who}: command {name!r} is a core command; its own is not added; "
+                  f"rename it, or block it with --block {owner}", file=sys.stderr)
+            continue
+        try:
+            pm.command(name).add_parser(sub)
+        except Exception as e:  # noqa: BLE001 - one plugin's parser must not stop the command line
+            sub.choices.pop(name, None)
+            sub._choices_actions[:] = [a for a in sub._choices_actions if a.dest != name]
+            print(f"inspector: warning: {who}: command {name!r} not added: add_parser raised "
+                  f"{type(e).__name__}: {' '.join(str(e).split())}; block it with --block {owner}", file=sys.stderr)
+            continue
+        if name not in sub.choices:
+            print(f"inspector: warning: {who}: command {name!r} not added: add_parser added no sub-parser named "
+                  f"{name!r}", file=sys.stderr)
     return ap
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    from inspector.manager import BLOCK_ENV
+
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        if args.command == "run":
-            return _run(args.recipe, args.capture, args.out, args.reference, args.quiet,
-                        watch=_watch_params(args))
-        if args.command == "demo":
-            return _demo(args)
-        if args.command == "simulate":
-            return _simulate(args)
-        if args.command == "plugins":
-            return _plugins(args)
-        if args.command == "capture":
-            from inspector_drivers import capture_cmd
-
-            return capture_cmd.run(args)
-        if args.command == "bench":
-            from inspector import bench
-
-            return bench.run(args)
-        if args.command == "history":
-            from inspector_plugins import history
-
-            return history.run(args)
-        if args.command == "report":
-            from inspector import report
-
-            return report.run(args)
-        if args.command == "import":
-            from inspector_drivers.replay import importers
-
-            return importers.run(args)
-        if args.command == "experiment":
-            from inspector import experiment
-
-            return experiment.run(args)
-        if args.command == "recipe":
-            return _recipe_check(args)
-        if args.command == "roles":
-            from inspector import roles
-
-            return roles.run(args)
-        if args.command == "gui":
-            from inspector.gui import app as gui_app
-
-            return gui_app.run(args)
+        pm = plugin_manager_for(argv)
+    except PluginError as e:
+        err(str(e))
+        return EXIT_INVALID
+    args = build_parser(pm).parse_args(argv)
+    args.plugin_manager = pm
+    # Code that builds its own plugin manager (the GUI window, Dask workers) honours --block too.
+    old_block = os.environ.get(BLOCK_ENV)
+    if args.block:
+        os.environ[BLOCK_ENV] = ",".join([*filter(None, (old_block or "").split(",")), *args.block])
+    try:
+        if args.command in CORE_COMMANDS:
+            return CORE_COMMANDS[args.command][1](args)
+        return pm.command(args.command).run(args)
     except RecipeError as e:
-        _err(str(e))
+        err(str(e))
         return EXIT_INVALID
     except InspectorError as e:
-        _err(str(e))
+        err(str(e))
         return EXIT_ERROR
     except BrokenPipeError:  # output piped to a pager or head that closed early
         return EXIT_OK
     except KeyboardInterrupt:
-        _err("interrupted; results written so far are kept")
+        err("interrupted; results written so far are kept")
         return 130
     except OSError as e:
-        _err(f"{e.filename or ''}: {e.strerror or e}".strip(": "))
+        err(f"{e.filename or ''}: {e.strerror or e}".strip(": "))
         return EXIT_ERROR
     except Exception as e:  # noqa: BLE001 - a bug: one line for the user, the traceback kept for us
-        _err(f"internal error {type(e).__name__}: {' '.join(str(e).split())} (traceback in {_save_traceback()})")
+        err(f"internal error {type(e).__name__}: {' '.join(str(e).split())} (traceback in {_save_traceback()})")
         return EXIT_ERROR
-    return EXIT_INVALID
+    finally:
+        if args.block:
+            if old_block is None:
+                os.environ.pop(BLOCK_ENV, None)
+            else:
+                os.environ[BLOCK_ENV] = old_block
 
 
 def _save_traceback() -> str:

@@ -6,7 +6,7 @@ which the CLI reports as one "internal error" line, its traceback saved to a fil
 
 from __future__ import annotations
 
-__all__ = ["InspectorError", "RecipeError", "InputError", "CaptureError", "ReferenceMeshError", "StageError"]
+__all__ = ["InspectorError", "RecipeError", "InputError", "CaptureError", "ReferenceMeshError", "StageError", "PluginError"]
 
 
 class InspectorError(Exception):
@@ -35,3 +35,13 @@ class ReferenceMeshError(InputError):
 
 class StageError(InspectorError):
     """A stage could not produce its result from valid inputs (e.g. empty silhouette)."""
+
+
+class PluginError(InspectorError, ValueError):
+    """A plugin cannot be used: it does not import, its hooks do not match the hookspecs, or
+    what it registers is invalid (a stage name, a parameter type, the evaluate contract).
+
+    A plugin loaded from an entry point that raises this is disabled with one warning naming
+    it (see :mod:`inspector.manager`); one registered from code (tests, an embedding
+    application) raises it. A ``ValueError`` too, for callers that caught that before.
+    """

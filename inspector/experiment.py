@@ -39,7 +39,12 @@ from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+from inspector import hookimpl
+
+if TYPE_CHECKING:
+    from inspector.registry import CommandRegistry
 
 __all__ = [
     "CASES",
@@ -241,10 +246,10 @@ def _pipeline(recipe_path: str | None, preset: str = "full") -> tuple[list[dict[
         raise RecipeError(f"{p}: recipe file not found") from None
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
         raise RecipeError(f"{p.name}: not a valid TOML recipe ({e})") from None
-    stages = data.get("stages")
-    if not isinstance(stages, list) or not stages:
+    raw_stages = data.get("stages")
+    if not isinstance(raw_stages, list) or not raw_stages:
         raise RecipeError(f"{p.name}: stages: expected at least one [[stages]] table")
-    return [dict(s) for s in stages], dict(data.get("tolerance", DEFAULT_TOLERANCE))
+    return [dict(s) for s in raw_stages], dict(data.get("tolerance", DEFAULT_TOLERANCE))
 
 
 def _method_stages(stages: list[dict[str, Any]], method: str) -> list[dict[str, Any]]:
@@ -461,6 +466,7 @@ def run_task(spec: Mapping[str, Any]) -> list[dict[str, Any]]:
         row = _base_row(spec, m) | common
         t_m = time.perf_counter()
         c = ctx
+        assert c is not None  # the prefix ran without an error
         try:
             for step in recipes[m].steps[k:]:
                 t0 = time.perf_counter()
@@ -979,3 +985,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"inspector: error: {bad} inspection(s) failed; see the 'error' column of the CSVs and summary.md", file=sys.stderr)
         return 3
     return 0
+
+
+# --------------------------------------------------------------------------- plugin
+@hookimpl
+def inspector_register_commands(registry: CommandRegistry) -> None:
+    """``inspector experiment``: a built-in plugin (entry point ``experiment``), like any command."""
+    from inspector.registry import CommandSpec
+
+    registry.add(CommandSpec("experiment", add_parser, run, "the paper's experiments (cases 1-3) on Dask"))

@@ -1,19 +1,37 @@
 """Bounds on what an input file may ask of the program, checked before it is parsed or built.
 
-Capture folders, hot-folder drops and dataset files are written by other programs, so their
-size must not decide how much memory or time a read takes: a JSON file is measured before it
-is read, its nesting depth before it is parsed, and a rig's camera count before any camera is
-built. Each bound is a documented default that an environment variable overrides:
+Capture folders, hot-folder drops, reference meshes and dataset files are written by other
+programs, so their size must not decide how much memory or time a read takes: a JSON file is
+measured before it is read, its nesting depth before it is parsed, a rig's camera count and
+image sizes before any camera is built, a PNG's header and file size before it is decoded,
+and a reference mesh's size before it is parsed. Each bound is a documented default that an
+environment variable overrides:
 
-==========================  ================================  ============================
+==========================  ================================  ========================================
 bound                       default                           environment variable
-==========================  ================================  ============================
+==========================  ================================  ========================================
 JSON input file size        16 MiB (a 256-camera rig.json     ``INSPECTOR_MAX_JSON_BYTES``
                             is about 0.2 MB)
 JSON nesting depth          64 levels (rig.json needs 5)      ``INSPECTOR_MAX_JSON_DEPTH``
 cameras in one rig          1024 (the full Middlebury         ``INSPECTOR_MAX_CAMERAS``
                             temple and dino sets: 312, 363)
-==========================  ================================  ============================
+pixels of one camera        2**26 (64 Mpx, 8192 x 8192)       ``INSPECTOR_MAX_IMAGE_PIXELS``
+pixels of one capture       2**30 (sixteen 64-Mpx cameras)    ``INSPECTOR_MAX_CAPTURE_PIXELS``
+PNG bytes beyond its        16 MiB (ICC profile, EXIF, text   ``INSPECTOR_MAX_IMAGE_METADATA_BYTES``
+largest pixel data          chunks)
+reference mesh triangles    1 000 000 (about 2.5 GB and two   ``INSPECTOR_MAX_REFERENCE_TRIANGLES``
+                            minutes to load and index)
+reference mesh file size    512 MiB (an ASCII STL of a        ``INSPECTOR_MAX_REFERENCE_BYTES``
+                            million triangles: about 250 MB)
+==========================  ================================  ========================================
+
+Images are bounded by the rig: a camera declares its width and height in ``rig.json``
+(within the pixel bounds above), an image's PNG header must declare exactly that size and a
+valid bit depth and colour type (8 or 16 bits; grey, grey + alpha, RGB, RGBA or palette),
+and its file may be at most :func:`image_file_bytes` of that size (the pixel data of a
+16-bit RGBA image stored uncompressed, plus the metadata allowance), all checked before a
+byte of pixel data is decoded: a small file declaring 30000 x 30000 pixels, or a link to a
+3 GiB file, costs nothing to refuse.
 
 Every refusal is one line naming the file and the variable that raises the bound.
 """
@@ -28,7 +46,21 @@ from typing import Any
 
 from inspector.errors import InputError
 
-__all__ = ["MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_CAMERAS", "limit", "json_depth", "load_json"]
+__all__ = [
+    "MAX_JSON_BYTES",
+    "MAX_JSON_DEPTH",
+    "MAX_CAMERAS",
+    "MAX_IMAGE_PIXELS",
+    "MAX_CAPTURE_PIXELS",
+    "MAX_IMAGE_METADATA_BYTES",
+    "MAX_REFERENCE_TRIANGLES",
+    "MAX_REFERENCE_BYTES",
+    "limit",
+    "read_bounded",
+    "image_file_bytes",
+    "json_depth",
+    "load_json",
+]
 
 #: Largest JSON input file, bytes.
 MAX_JSON_BYTES = 16 * 2**20
@@ -38,7 +70,28 @@ MAX_JSON_DEPTH = 64
 #: Most cameras in one rig.json (a rig.json of 10^6 cameras took minutes and over 2 GB to refuse).
 MAX_CAMERAS = 1024
 
-_DEFAULTS = {"MAX_JSON_BYTES": MAX_JSON_BYTES, "MAX_JSON_DEPTH": MAX_JSON_DEPTH, "MAX_CAMERAS": MAX_CAMERAS}
+#: Most pixels one camera may declare (a 30000 x 30000 PNG once took 15.6 GB to refuse).
+MAX_IMAGE_PIXELS = 2**26
+#: Most pixels of all the cameras of one rig together (what a capture's images hold in memory).
+MAX_CAPTURE_PIXELS = 2**30
+#: Bytes a PNG file may hold beyond its largest possible pixel data (metadata chunks).
+MAX_IMAGE_METADATA_BYTES = 16 * 2**20
+#: Most triangles of a reference mesh: 330k took 29 s and 1 GB to load and index here, 5.24M once
+#: took 8.9 GB and 233 s (unwarned); a million is about 2.5 GB and two minutes.
+MAX_REFERENCE_TRIANGLES = 1_000_000
+#: Largest reference mesh file (an ASCII STL of a million triangles is about 250 MB).
+MAX_REFERENCE_BYTES = 512 * 2**20
+
+_DEFAULTS = {
+    "MAX_JSON_BYTES": MAX_JSON_BYTES,
+    "MAX_JSON_DEPTH": MAX_JSON_DEPTH,
+    "MAX_CAMERAS": MAX_CAMERAS,
+    "MAX_IMAGE_PIXELS": MAX_IMAGE_PIXELS,
+    "MAX_CAPTURE_PIXELS": MAX_CAPTURE_PIXELS,
+    "MAX_IMAGE_METADATA_BYTES": MAX_IMAGE_METADATA_BYTES,
+    "MAX_REFERENCE_TRIANGLES": MAX_REFERENCE_TRIANGLES,
+    "MAX_REFERENCE_BYTES": MAX_REFERENCE_BYTES,
+}
 
 
 def limit(name: str) -> int:
@@ -62,6 +115,18 @@ def limit(name: str) -> int:
     if value < 1:
         raise InputError(f"${var}: expected a positive integer, got {raw!r}")
     return value
+
+
+def image_file_bytes(width: int, height: int) -> int:
+    """Largest file an image of ``width`` x ``height`` pixels may be, in bytes.
+
+    The pixel data of the largest PNG of that size (16-bit RGBA, 8 bytes a pixel, plus a
+    filter byte a row, 7 more for an interlaced one), stored uncompressed (deflate's stored
+    blocks add 5 bytes in 65535: 1 % covers it and the chunk headers), plus
+    ``INSPECTOR_MAX_IMAGE_METADATA_BYTES`` for metadata chunks. A 1024 x 1024 camera: 24.5 MiB.
+    """
+    raw = height * (8 * width + 8)
+    return raw + raw // 100 + limit("MAX_IMAGE_METADATA_BYTES")
 
 
 def json_depth(raw: bytes) -> int:
@@ -89,8 +154,42 @@ def json_depth(raw: bytes) -> int:
     return int(np.cumsum(steps).max())
 
 
-def _too_big(label: str, size: int, most: int) -> str:
-    return f"{label}: {size} bytes, more than the {most} a JSON input may have (INSPECTOR_MAX_JSON_BYTES)"
+def _too_big(label: str, size: int, most: int, what: str, variable: str) -> str:
+    return f"{label}: {size} bytes, more than the {most} {what} may have ({variable})"
+
+
+def read_bounded(
+    path: str | os.PathLike[str],
+    label: str,
+    most: int,
+    error: type[Exception] = InputError,
+    *,
+    what: str = "an input file",
+    variable: str = "",
+) -> bytes:
+    """The bytes of the regular file ``path``, measured before it is read and never read
+    past ``most`` bytes (a link to a huge file costs nothing; a device or a FIFO is not a
+    file, and opening one never blocks).
+
+    Raises ``error`` with a one-line message starting with ``label``: not a file, cannot be
+    read, or larger than ``most`` (naming ``what`` and the environment ``variable`` that
+    raises the bound).
+    """
+    try:
+        # Non-blocking: a FIFO named rig.json must not hang a watcher (refused below).
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
+        with os.fdopen(fd, "rb") as f:
+            st = os.fstat(f.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                raise error(f"{label}: not a file")
+            if st.st_size > most:
+                raise error(_too_big(label, st.st_size, most, what, variable))
+            raw = f.read(most + 1)
+    except OSError as exc:
+        raise error(f"{label}: cannot be read ({exc.strerror or exc})") from None
+    if len(raw) > most:  # grew while it was read
+        raise error(_too_big(label, len(raw), most, what, variable))
+    return raw
 
 
 def load_json(
@@ -124,21 +223,7 @@ def load_json(
         The parsed document (``NaN`` and ``Infinity`` literals are accepted, as Python
         writes them; callers that need finite numbers check them).
     """
-    most = limit("MAX_JSON_BYTES")
-    try:
-        # Non-blocking: a FIFO named rig.json must not hang a watcher (refused below).
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
-        with os.fdopen(fd, "rb") as f:
-            st = os.fstat(f.fileno())
-            if not stat.S_ISREG(st.st_mode):
-                raise error(f"{label}: not a file")
-            if st.st_size > most:
-                raise error(_too_big(label, st.st_size, most))
-            raw = f.read(most + 1)
-    except OSError as exc:
-        raise error(f"{label}: cannot be read ({exc.strerror or exc})") from None
-    if len(raw) > most:  # grew while it was read
-        raise error(_too_big(label, len(raw), most))
+    raw = read_bounded(path, label, limit("MAX_JSON_BYTES"), error, what="a JSON input", variable="INSPECTOR_MAX_JSON_BYTES")
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:

@@ -26,6 +26,10 @@ __all__ = [
     "Alignment",
     "BcpsPoints",
     "Defect",
+    "DeviationStats",
+    "RegionSummary",
+    "EvaluationSummary",
+    "SUMMARY_FIELDS",
     "Evaluation",
     "InspectionResult",
 ]
@@ -168,7 +172,7 @@ class Truth:
         if self.mesh_path is not None and Path(self.mesh_path).is_file():
             import trimesh
 
-            m = trimesh.load(self.mesh_path, force="mesh", process=False)
+            m: Any = trimesh.load(self.mesh_path, force="mesh", process=False)
             return np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)
         return None
 
@@ -275,6 +279,61 @@ class Alignment:
     fitness: float
     rmse_mm: float
     method: str = ""
+    confidence: PoseConfidence | None = None
+
+
+@dataclass(frozen=True)
+class PoseConfidence:
+    """How firmly the data fix the pose's turn about the reference's axis of near-symmetry.
+
+    Attributes
+    ----------
+    axis : (3,) tuple of float or None
+        Unit axis of near-symmetry, reference frame (None: the reference has none, e.g. a
+        box; nothing below is then measured).
+    symmetry_deg : tuple of float
+        Turns about the axis that map the reference onto itself (its own symmetries, which
+        are not ambiguities), degrees.
+    hull_range_deg : tuple of float
+        The turns, degrees (negative and positive), about the pose within which the
+        reference stays inside the part's visual hull: how far the silhouettes alone
+        allow the pose to turn.
+    runner_up_deg : float or None
+        The best other turn (neither near the pose nor near a symmetry, and inside the
+        hull), degrees; None when every other turn leaves the hull.
+    margin : float or None
+        How much worse the points fit at ``runner_up_deg`` than at the pose: the mean
+        Tukey loss at ``cutoff_mm`` (0: every point on the surface; 1: every point beyond
+        the cutoff) at the runner-up minus at the pose.
+    margin_points : int or None
+        ``margin`` times the number of points: about how many points pin the turn.
+    cutoff_mm : float
+        The loss's cutoff, mm.
+    ambiguous : bool
+        Whether the runner-up fits about as well (``margin_points`` below a few dozen):
+        the features that key the part do not decide its turn in these images.
+    """
+
+    axis: tuple[float, float, float] | None = None
+    symmetry_deg: tuple[float, ...] = ()
+    hull_range_deg: tuple[float, float] = (0.0, 0.0)
+    runner_up_deg: float | None = None
+    margin: float | None = None
+    margin_points: int | None = None
+    cutoff_mm: float = 0.0
+    ambiguous: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "axis": None if self.axis is None else [float(v) for v in self.axis],
+            "symmetry_deg": [float(v) for v in self.symmetry_deg],
+            "hull_range_deg": [float(v) for v in self.hull_range_deg],
+            "runner_up_deg": self.runner_up_deg,
+            "margin": self.margin,
+            "margin_points": self.margin_points,
+            "cutoff_mm": float(self.cutoff_mm),
+            "ambiguous": bool(self.ambiguous),
+        }
 
 
 @dataclass(frozen=True, eq=False)
@@ -331,14 +390,109 @@ class Defect:
         }
 
 
+@dataclass(frozen=True)
+class DeviationStats:
+    """Summary of signed deviations, mm (negative: missing material)."""
+
+    mean: float
+    std: float
+    min: float
+    max: float
+    p01: float
+    p99: float
+    mean_abs: float
+
+    @classmethod
+    def of(cls, deviation: np.ndarray) -> DeviationStats | None:
+        """The summary of ``deviation`` (N,), None when there is none."""
+        from inspector.kernels.deviation import deviation_stats
+
+        d = deviation_stats(np.asarray(deviation, float))
+        return cls(**d) if d else None
+
+    def to_json(self) -> dict[str, float]:
+        return {"mean": self.mean, "std": self.std, "min": self.min, "max": self.max, "p01": self.p01,
+                "p99": self.p99, "mean_abs": self.mean_abs}
+
+
+@dataclass(frozen=True)
+class RegionSummary:
+    """One tolerance region of a part: its band, and the BCPS points that fell in it.
+
+    ``name`` is ``"default"`` for the points of no named region.
+    """
+
+    name: str
+    lower_mm: float
+    upper_mm: float
+    n_points: int
+    out_of_tolerance_points: int
+    deviation_mm: DeviationStats | None
+
+
+@dataclass(frozen=True, eq=False)
+class EvaluationSummary:
+    """The evaluate stage's contract: what ``result.json``, the history and the CSV export
+    read, whichever evaluate variant ran.
+
+    An evaluate stage declares ``StageSpec(summary=EvaluationSummary)`` (or a dataclass with
+    at least the fields of :data:`SUMMARY_FIELDS`: a subclass, to add its own), checked when
+    the plugin registers, and sets ``Evaluation(summary=...)``, checked by the runner.
+
+    Attributes
+    ----------
+    n_points : int
+        Points evaluated (BCPS points).
+    deviation_mm : DeviationStats or None
+        Their signed deviations; None without points.
+    tolerance_mm : (float, float)
+        The default band, ``(lower, upper)``.
+    within_tolerance : float
+        Share of the points within their band, 0..1.
+    out_of_tolerance_points : int
+    regions : tuple of RegionSummary
+        Optional: per region, ``"default"`` first (the CSV export's ``regions.csv``).
+    point_region : (N,) int or None
+        Optional: per BCPS point, its index in ``regions``.
+    """
+
+    n_points: int
+    deviation_mm: DeviationStats | None
+    tolerance_mm: tuple[float, float]
+    within_tolerance: float
+    out_of_tolerance_points: int
+    regions: tuple[RegionSummary, ...] = ()
+    point_region: np.ndarray | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``stats`` keys of ``result.json`` this summary fills (as before it existed)."""
+        return {
+            "n_points": int(self.n_points),
+            "deviation_mm": self.deviation_mm.to_json() if self.deviation_mm is not None else {},
+            "within_tolerance": float(self.within_tolerance),
+            "out_of_tolerance_points": int(self.out_of_tolerance_points),
+            "tolerance_mm": {"lower": float(self.tolerance_mm[0]), "upper": float(self.tolerance_mm[1])},
+        }
+
+
+#: The fields an evaluate stage must fill (those of :class:`EvaluationSummary` without default).
+SUMMARY_FIELDS = ("n_points", "deviation_mm", "tolerance_mm", "within_tolerance", "out_of_tolerance_points")
+
+
 @dataclass(frozen=True, eq=False)
 class Evaluation:
-    """Tolerance verdict of one part."""
+    """Tolerance verdict of one part.
 
-    verdict: str  # "pass" | "fail"
+    ``summary`` is the typed contract (:class:`EvaluationSummary`); ``stats`` holds whatever
+    else the variant reports (written to ``result.json`` ``stats``, after the summary's keys).
+    """
+
+    verdict: str  # "pass" | "fail" | "error" (with ``error``: e.g. defects a turned pose would explain)
     stats: Mapping[str, Any]
     defects: tuple[Defect, ...]
     out_of_tolerance: np.ndarray  # (N,) bool, per BCPS point
+    summary: EvaluationSummary | None = None
+    error: str | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -361,3 +515,7 @@ class InspectionResult:
     #: The recipe file (absolute) and the SHA-256 of its bytes, when it came from a file.
     recipe_path: str | None = None
     recipe_sha256: str | None = None
+    #: The evaluate stage's summary (None: no evaluate stage, or an error).
+    summary: EvaluationSummary | None = None
+    #: What stages put in ``context.extras``, JSON-safe (``result.json`` ``extras``).
+    extras: Mapping[str, Any] = field(default_factory=dict)

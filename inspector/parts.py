@@ -418,7 +418,7 @@ def random_bumps(
     points, _ = trimesh.sample.sample_surface(mesh, n, seed=rng)
     radii = rng.uniform(min_radius_mm, max_radius_mm, size=n)
     kinds = [kind] * n if kind is not None else [("add", "remove")[i] for i in rng.integers(0, 2, size=n)]
-    return tuple(Bump(tuple(p), float(r), k) for p, r, k in zip(points, radii, kinds))
+    return tuple(Bump(tuple(p), float(r), k) for p, r, k in zip(points, radii, kinds))  # type: ignore[arg-type]
 
 
 # --------------------------------------------------------------------------- loading
@@ -451,8 +451,10 @@ def load_reference(spec: str | os.PathLike, *, recentre: bool = True) -> trimesh
     ------
     ReferenceMeshError
         With a one-line message naming the file: the file is missing, unreadable or
-        of an unsupported format, holds no triangles, is not watertight or not
-        consistently wound; or the built-in name is unknown.
+        of an unsupported format, larger than the input bounds (:mod:`inspector.limits`:
+        ``INSPECTOR_MAX_REFERENCE_BYTES``, ``INSPECTOR_MAX_REFERENCE_TRIANGLES``, checked
+        from a binary STL's or a PLY's header before it is parsed), holds no triangles, is
+        not watertight or not consistently wound; or the built-in name is unknown.
     """
     if isinstance(spec, str) and spec.startswith(BUILTIN_PREFIX):
         name = spec[len(BUILTIN_PREFIX):].strip()
@@ -477,12 +479,65 @@ def load_reference(spec: str | os.PathLike, *, recentre: bool = True) -> trimesh
     if suffix not in MESH_SUFFIXES:
         raise ReferenceMeshError(f"{where}: unsupported format {path.suffix!r} (use STL, PLY or OBJ)")
 
+    _check_mesh_size(path, where)
     # Garbage input makes the parsers emit numeric warnings (overflow, NaN casts):
     # the errors below already say what is wrong with the file.
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)
         mesh = _read_mesh(path, where)
+        _check_triangles(len(mesh.faces), where)
         return _validate_mesh(mesh, path, where, recentre)
+
+
+def _check_triangles(n: int, where: str) -> None:
+    from inspector.limits import limit
+
+    most = limit("MAX_REFERENCE_TRIANGLES")
+    if n > most:
+        raise ReferenceMeshError(
+            f"{where}: {n} triangles, more than the {most} a reference mesh may have "
+            "(INSPECTOR_MAX_REFERENCE_TRIANGLES; decimate the mesh, or raise the bound)"
+        )
+
+
+def _declared_triangles(path: Path, size: int) -> int | None:
+    """The triangle count a file declares before its data, or None: a binary STL's count
+    (when the file's size matches it), a PLY header's ``element face`` (polygons count once)."""
+    import re
+    import struct
+
+    with open(path, "rb") as f:
+        head = f.read(65536)
+    if head[:3] == b"ply":
+        end = head.find(b"end_header")
+        m = re.search(rb"^element\s+face\s+(\d+)\s*$", head[: end if end >= 0 else None], re.M)
+        return int(m.group(1)) if m else None
+    if len(head) >= 84:
+        n = struct.unpack("<I", head[80:84])[0]
+        if 84 + 50 * n == size:  # binary STL
+            return n
+    return None
+
+
+def _check_mesh_size(path: Path, where: str) -> None:
+    """The input bounds of a reference mesh (:mod:`inspector.limits`), before it is parsed:
+    the file's size, and the triangles a binary STL or a PLY header declares (other files are
+    counted once parsed, within the size bound). ReferenceMeshError in one line."""
+    from inspector.limits import limit
+
+    try:
+        size = path.stat().st_size
+        most = limit("MAX_REFERENCE_BYTES")
+        if size > most:
+            raise ReferenceMeshError(
+                f"{where}: {size} bytes, more than the {most} a reference mesh may have "
+                "(INSPECTOR_MAX_REFERENCE_BYTES; decimate the mesh, or raise the bound)"
+            )
+        n = _declared_triangles(path, size)
+    except OSError as exc:
+        raise ReferenceMeshError(f"{where}: cannot be read ({exc.strerror or exc})") from None
+    if n is not None:
+        _check_triangles(n, where)
 
 
 def _read_mesh(path: Path, where: str) -> trimesh.Trimesh:

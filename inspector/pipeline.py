@@ -7,6 +7,7 @@ and returns a new context (``context.evolve(reconstruction=...)``) with its own 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -65,7 +66,11 @@ class InspectionContext:
     bcps : BcpsPoints (after ``bcps``)
     evaluation : Evaluation (after ``evaluate``)
     extras : dict
-        Free space for third-party stages (e.g. a classifier's label).
+        Free space for third-party stages (e.g. a classifier's label): kept, JSON-safe, in
+        ``result.json`` ``extras``, the history and ``InspectionResult.extras``.
+    settings : mapping
+        Plugin name -> its validated recipe settings (``[plugins.NAME]``, see
+        ``inspector_register_settings``); read-only.
     """
 
     capture: Capture
@@ -77,6 +82,7 @@ class InspectionContext:
     bcps: BcpsPoints | None = None
     evaluation: Evaluation | None = None
     extras: dict[str, Any] = field(default_factory=dict)
+    settings: Mapping[str, Any] = field(default_factory=dict)
 
     def evolve(self, **changes: Any) -> InspectionContext:
         """A copy with ``changes`` applied."""

@@ -26,23 +26,58 @@ Layout::
     box_max = [15, 15, 15]
     lower = -0.05
     upper = 0.05
+    [outputs]                           # optional
+    csv = true                          # also bcps_points.csv and regions.csv (inspector run --csv)
+    [budget]                            # optional; else INSPECTOR_STAGE_BUDGET_S / _HOOK_BUDGET_S
+    stage_s = 60.0                      # a stage slower than this is a warning naming it
+    hook_s = 1.0                        # a plugin's lifecycle hook slower than this, too
+    [plugins.acme]                      # optional: plugin acme's settings (inspector_register_settings),
+    line = "L3"                         # validated like stage parameters; never code to load
 """
 
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from types import MappingProxyType
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from inspector.errors import RecipeError
-from inspector.params import build_params
+from inspector.params import build_params, param
 from inspector.pipeline import Band, Region, Tolerance
 from inspector.registry import DriverSpec, StageSpec
 
-__all__ = ["Step", "DriverStep", "Recipe", "load_recipe", "parse_recipe", "read_recipe_toml"]
+if TYPE_CHECKING:
+    from inspector.manager import PluginManager
+
+__all__ = ["Step", "DriverStep", "Outputs", "Budget", "BUDGET_ENV", "Recipe", "load_recipe", "parse_recipe",
+           "read_recipe_toml"]
+
+
+@dataclass(frozen=True)
+class Outputs:
+    """``[outputs]``: optional result files, beside the CONTRACT ones."""
+
+    csv: bool = param(False, "also write bcps_points.csv (per-point deviations) and regions.csv (per-region "
+                             "summary) in each result folder (inspector run --csv)")
+
+
+@dataclass(frozen=True)
+class Budget:
+    """``[budget]``: how long a stage, or a plugin's lifecycle hook, may take before it is a
+    warning naming it (in ``result.json`` ``stats.warnings`` and on stderr, once per run)."""
+
+    stage_s: float = param(60.0, "seconds a stage may take on one capture", min=0.001, max=86400.0)
+    hook_s: float = param(1.0, "seconds one call of a plugin's lifecycle hook (on_result...) may take",
+                          min=0.001, max=86400.0)
+
+
+#: Environment variables for the budget when the recipe does not set it.
+BUDGET_ENV = {"stage_s": "INSPECTOR_STAGE_BUDGET_S", "hook_s": "INSPECTOR_HOOK_BUDGET_S"}
 
 
 @dataclass(frozen=True)
@@ -76,6 +111,13 @@ class Recipe:
     sha256 : str or None
         Hex SHA-256 of the recipe file's bytes (None for a recipe built from a table):
         what an inspection's result and report name as "the recipe", exactly.
+    outputs : Outputs
+        ``[outputs]``: optional result files (CSV).
+    budget : Budget
+        ``[budget]``, else the environment (:data:`BUDGET_ENV`), else the defaults.
+    plugins : mapping
+        Plugin name -> its validated settings (``[plugins.NAME]``, the defaults when the
+        recipe has no table), for every loaded plugin that declares settings.
     """
 
     name: str
@@ -85,6 +127,9 @@ class Recipe:
     steps: tuple[Step, ...]
     tolerance: Tolerance
     sha256: str | None = None
+    outputs: Outputs = field(default_factory=Outputs)
+    budget: Budget = field(default_factory=Budget)
+    plugins: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
 
 
 def _table(value: Any, where: str) -> Mapping[str, Any]:
@@ -159,7 +204,8 @@ def _tolerance(raw: Any, where: str) -> Tolerance:
     return Tolerance(default, tuple(regions))
 
 
-def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, reference: str | None = None) -> Recipe:
+def parse_recipe(data: Mapping[str, Any], pm: PluginManager, *, path: Path | None = None,
+                 reference: str | None = None) -> Recipe:
     """Validate a parsed TOML document against the registered stages and drivers.
 
     Parameters
@@ -167,6 +213,8 @@ def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, 
     data : mapping
         The TOML document.
     pm : inspector.manager.PluginManager
+        Its stages and drivers; a name it lacks is refused with
+        :meth:`~inspector.manager.PluginManager.missing` (naming a disabled plugin).
     path : Path, optional
         The recipe file (for messages and relative paths).
     reference : str, optional
@@ -174,7 +222,7 @@ def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, 
     """
     label = path.name if path is not None else "<recipe>"
     base = path.parent if path is not None else Path.cwd()
-    _only(data, {"recipe", "driver", "stages", "tolerance"}, label)
+    _only(data, {"recipe", "driver", "stages", "tolerance", "outputs", "budget", "plugins"}, label)
 
     head = _table(data.get("recipe", {}), f"{label}: recipe")
     _only(head, {"name", "reference", "description"}, f"{label}: recipe")
@@ -198,10 +246,10 @@ def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, 
     drv = _table(data.get("driver", {"use": "replay"}), f"{label}: driver")
     _only(drv, {"use", "params"}, f"{label}: driver")
     use = drv.get("use", "replay")
-    if use not in pm.drivers:
-        raise RecipeError(f"{label}: driver.use: unknown driver {use!r} (known: {', '.join(pm.drivers.names())})")
-    dspec: DriverSpec = pm.drivers[use]
-    driver = DriverStep(dspec, build_params(dspec.params, drv.get("params"), f"{label}: driver.params"))
+    if not isinstance(use, str) or use not in pm.drivers:
+        raise RecipeError(f"{label}: driver.use: {pm.missing('driver', str(use))}")
+    dspec: DriverSpec = pm.driver(use)
+    driver = DriverStep(dspec, build_params(dspec.params, drv.get("params"), f"{label}: driver.params", base))
 
     raw_stages = data.get("stages")
     if not isinstance(raw_stages, list) or not raw_stages:
@@ -217,8 +265,8 @@ def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, 
         if not isinstance(use, str):
             raise RecipeError(f"{w}.use: expected a stage name like 'carve.hull'")
         if use not in pm.stages:
-            raise RecipeError(f"{w}.use: unknown stage {use!r} (known: {', '.join(pm.stages.names())})")
-        spec: StageSpec = pm.stages[use]
+            raise RecipeError(f"{w}.use: {pm.missing('stage', use)}")
+        spec: StageSpec = pm.stage(use)
         sname = st.get("name", spec.kind)
         if not isinstance(sname, str) or not sname:
             raise RecipeError(f"{w}.name: expected a non-empty string")
@@ -228,14 +276,53 @@ def parse_recipe(data: Mapping[str, Any], pm: Any, *, path: Path | None = None, 
         missing = [k for k in spec.requires if k not in seen_kinds]
         if missing:
             raise RecipeError(f"{w}: {use} needs a {missing[0]!r} stage before it")
-        params = build_params(spec.params, st.get("params"), f"{w}.params")
+        params = build_params(spec.params, st.get("params"), f"{w}.params", base)
         steps.append(Step(sname, spec, params))
         seen_names.add(sname)
         seen_kinds.add(spec.kind)
     tol = _tolerance(data.get("tolerance"), f"{label}: tolerance")
     if any(s.spec.kind in ("align", "bcps", "evaluate") for s in steps) and ref is None:
         raise RecipeError(f"{label}: recipe.reference: no reference mesh (set it in the recipe or pass --reference)")
-    return Recipe(name, path, ref, driver, tuple(steps), tol)
+    outputs = build_params(Outputs, _table(data.get("outputs", {}), f"{label}: outputs"), f"{label}: outputs")
+    return Recipe(name, path, ref, driver, tuple(steps), tol, outputs=outputs,
+                  budget=_budget(data.get("budget"), f"{label}: budget"),
+                  plugins=_plugin_settings(data.get("plugins"), pm, f"{label}: plugins", base))
+
+
+def _plugin_settings(raw: Any, pm: PluginManager, where: str, base: Path) -> Mapping[str, Any]:
+    """``[plugins.NAME]`` tables validated against each plugin's declared settings; the
+    defaults for a plugin with settings that the recipe does not mention. A table for a
+    plugin without settings (or not loaded: disabled, blocked, not installed) is refused
+    naming it."""
+    tables = _table(raw if raw is not None else {}, where)
+    out: dict[str, Any] = {}
+    for name, table in tables.items():
+        if name not in pm.settings:
+            raise RecipeError(f"{where}.{name}: {pm.missing('settings', name)}")
+        spec = pm.settings_spec(name)
+        out[name] = build_params(spec.params, _table(table, f"{where}.{name}"), f"{where}.{name}", base)
+    for name in pm.settings.names():
+        if name not in out:
+            out[name] = build_params(pm.settings_spec(name).params, {}, f"{where}.{name}", base)
+    return MappingProxyType(out)
+
+
+def _budget(raw: Any, where: str) -> Budget:
+    """``[budget]``; a key not set there comes from its environment variable
+    (:data:`BUDGET_ENV`), else the default. RecipeError naming the key or the variable."""
+    table = dict(_table(raw if raw is not None else {}, where))
+    for key, var in BUDGET_ENV.items():
+        text = os.environ.get(var, "").strip()
+        if key in table or not text:
+            continue
+        try:
+            build_params(Budget, {key: float(text)}, var)
+        except (ValueError, RecipeError) as e:
+            why = str(e).split(": ", 1)[-1] if isinstance(e, RecipeError) else f"expected seconds, got {text!r}"
+            raise RecipeError(f"{var}: {why}") from None
+        table[key] = float(text)
+    budget: Budget = build_params(Budget, table, where)
+    return budget
 
 
 def read_recipe_toml(path: str | Path) -> dict[str, Any]:
@@ -253,7 +340,7 @@ def read_recipe_toml(path: str | Path) -> dict[str, Any]:
         raise RecipeError(f"{p.name}: not a recipe (arrays or tables nested too deeply)") from None
 
 
-def load_recipe(path: str | Path, pm: Any, *, reference: str | None = None) -> Recipe:
+def load_recipe(path: str | Path, pm: PluginManager, *, reference: str | None = None) -> Recipe:
     """Read and validate a recipe file; raises RecipeError naming the file and key."""
     import dataclasses
     import hashlib

@@ -21,10 +21,13 @@ import tempfile
 import tomllib
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal, get_args, get_origin
+from typing import TYPE_CHECKING, Any, Literal, get_args, get_origin
+
+if TYPE_CHECKING:
+    from inspector.manager import PluginManager
 
 __all__ = ["Field", "Section", "RecipeForm", "form_for", "validate", "save_new"]
 
@@ -241,6 +244,7 @@ class RecipeForm:
 
         stages = [dict(s) for s in doc.get("stages", [])]
         for sec in self.stages:
+            assert sec.index is not None  # a stage section always has its index
             st = stages[sec.index]
             params = _params(st.get("params"), sec)
             if params or "params" in st:
@@ -255,6 +259,7 @@ class RecipeForm:
         if self.regions:
             raw = [dict(r) for r in tol.get("regions", [])]
             for sec in self.regions:
+                assert sec.index is not None
                 raw[sec.index].update({f.name: f.value for f in sec.fields})
             tol["regions"] = raw
         if tol:
@@ -277,11 +282,18 @@ class RecipeForm:
 
 
 def _plain(value: Any) -> Any:
-    """Tuples as lists, recursively (what TOML writes), mappings as dicts."""
+    """Tuples as lists, recursively (what TOML writes), mappings as dicts; a path parameter
+    as its text, an Enum choice as its value."""
+    import enum
+
     if isinstance(value, (list, tuple)):
         return [_plain(v) for v in value]
     if isinstance(value, Mapping):
         return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if isinstance(value, enum.Enum):
+        return value.value
     return value
 
 
@@ -347,7 +359,7 @@ def _table(value: Any) -> Mapping[str, Any]:
     return value if isinstance(value, Mapping) else {}
 
 
-def form_for(recipe_path: str | os.PathLike[str], pm: Any) -> RecipeForm:
+def form_for(recipe_path: str | os.PathLike[str], pm: PluginManager) -> RecipeForm:
     """The form of a recipe file.
 
     Parameters
@@ -426,7 +438,7 @@ def _target(form: RecipeForm, path: str | os.PathLike[str] | None, name: str | N
     return Path.cwd() / f"{_slug(name or form.name)}.toml"
 
 
-def validate(form: RecipeForm, pm: Any, *, path: str | os.PathLike[str] | None = None,
+def validate(form: RecipeForm, pm: PluginManager, *, path: str | os.PathLike[str] | None = None,
              name: str | None = None) -> str | None:
     """The error line of the form's recipe, or None when it is valid.
 
@@ -494,7 +506,7 @@ def _write_new(path: Path, text: str) -> None:
             pass
 
 
-def save_new(form: RecipeForm, folder_or_path: str | os.PathLike[str], pm: Any, *,
+def save_new(form: RecipeForm, folder_or_path: str | os.PathLike[str], pm: PluginManager, *,
              name: str | None = None) -> Path:
     """Validate the form, then write it as a NEW recipe file; never overwrites one.
 
@@ -533,7 +545,7 @@ def save_new(form: RecipeForm, folder_or_path: str | os.PathLike[str], pm: Any, 
         raise FileNotFoundError(f"{folder}: no such folder to save the recipe in")
     if in_folder:
         stem = _slug(name or form.name)
-        candidates = (dest / (stem + (f"-{k}" if k > 1 else "") + ".toml") for k in range(1, 10_000))
+        candidates: Iterator[Path] = (dest / (stem + (f"-{k}" if k > 1 else "") + ".toml") for k in range(1, 10_000))
     else:
         if dest.exists():
             raise FileExistsError(f"{dest}: already exists; a recipe is never overwritten (save it under a new name)")

@@ -400,11 +400,11 @@ def _reason(res: dict, rec: dict) -> tuple[str, str]:
                           f"{broken} ({d['n_points']} points, defect #1){others}.")
     within = stats.get("within_tolerance")
     share = f"{_num(100 * within, '.2f', ' %') if isinstance(within, (int, float)) else '—'} of "
-    band = f"[{_num(lo, '+.3f')}, {_num(hi, '+.3f')}] mm"
+    band_text = f"[{_num(lo, '+.3f')}, {_num(hi, '+.3f')}] mm"
     if verdict == "fail":
-        return ("Reason", f"out of tolerance ({stats.get('out_of_tolerance_points', '—')} points outside {band}); "
+        return ("Reason", f"out of tolerance ({stats.get('out_of_tolerance_points', '—')} points outside {band_text}); "
                           "no defect cluster recorded.")
-    return ("Result", f"{share}{_num(stats.get('n_points'), ',d')} BCPS points within the tolerance {band}; "
+    return ("Result", f"{share}{_num(stats.get('n_points'), ',d')} BCPS points within the tolerance {band_text}; "
                       f"{len(defects) or 'no'} defect(s).")
 
 
@@ -514,7 +514,8 @@ def _draw_stats(page: _Page, res: dict) -> None:
              if isinstance(shift, list) and len(shift) == 3 else "—"),
         ]),
         ("Cycle time per stage", [
-            (k, _num(v, ".3f", " s")) for k, v in _dict(res.get("timings_s")).items() if k != "total"
+            (k, _num(v, ".3f", " s")) for k, v in _dict(res.get("timings_s")).items()
+            if k != "total" and not str(k).startswith("hook:")  # plugins' hook times are not stages
         ][:8] + [("total", _num(_dict(res.get("timings_s")).get("total"), ".3f", " s"))]),
     ]
     lh, colw = _line_h(8, 1.4), (_W - 2 * _MARGIN) / 3
@@ -635,7 +636,7 @@ def _draw_recipe(page: _Page, rec: dict) -> float:
     lines = text.expandtabs(4).splitlines()
     per_col = max(1, int((bottom - y0 - 0.05) / lh))
 
-    def layout(ncols: int) -> tuple[int, int, list[str]]:
+    def layout(ncols: int) -> tuple[int, int, int, list[str]]:
         """(lines shown, characters shown, columns, lines) when set in ``ncols`` columns."""
         width = int(((_W - 2 * _MARGIN) / ncols - 0.2) / cw)
         fit = per_col * ncols

@@ -348,7 +348,7 @@ def record_audit(
             row,
         )
         con.commit()
-        return int(cur.lastrowid)
+        return int(cur.lastrowid or 0)
     finally:
         con.close()
 

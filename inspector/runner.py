@@ -5,27 +5,54 @@ reason; the batch goes on. A capture cancelled between two stages (``should_abor
 verdict ``"aborted"``: nothing is written for it, no ``inspector_on_result`` is called, and
 the batch stops there. Unexpected exceptions (bugs) are reported the same way, with the
 traceback written to ``traceback.txt`` in that capture's result folder, never to the user.
+
+What a stage returns is checked (:func:`check_output`): a context whose output for the
+stage's kind (:data:`inspector.registry.OUTPUTS`) is set and of its type; otherwise the
+capture's verdict is ``"error"`` naming the step, the stage and its plugin.
+
+What stages put in ``context.extras`` is kept: made JSON-safe (:func:`json_extras`; a value
+that is not JSON is left out with a warning naming the stage and the key) into
+``result.extras``, which ``result.json``, the history and ``inspector_on_result`` receive.
+
+Time: each stage, and each plugin's lifecycle hooks (``hook:PLUGIN:HOOK``, summed over the
+capture's calls), is in ``timings_s``; ``inspector_on_result`` runs after ``result.json`` is
+written, which is then rewritten with its time. A stage or one hook call slower than the
+recipe's :class:`~inspector.recipe.Budget` is a warning naming it in ``stats.warnings``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 import traceback
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from inspector.errors import InspectorError
-from inspector.manager import PluginManager
-from inspector.model import Capture, InspectionResult
-from inspector.pipeline import InspectionContext
-from inspector.recipe import Recipe
-from inspector.reference import Reference
-from inspector.registry import Acquisition
+import numpy as np
 
-__all__ = ["ABORTED", "Outcome", "inspect_capture", "run_batch", "exit_status"]
+from inspector.errors import InspectorError, StageError
+from inspector.manager import PluginManager
+from inspector.model import (SUMMARY_FIELDS, Alignment, BcpsPoints, Capture, DeviationStats, Evaluation,
+                             EvaluationSummary, InspectionResult, Reconstruction, Silhouette)
+from inspector.pipeline import InspectionContext
+from inspector.recipe import BUDGET_ENV, Recipe
+from inspector.reference import Reference
+from inspector.registry import OUTPUTS, Acquisition, StageSpec
+
+__all__ = ["ABORTED", "Outcome", "inspect_capture", "run_batch", "exit_status", "check_output", "json_extras"]
+
+#: The type of each kind's output (segment: a tuple of these).
+_OUTPUT_TYPES: dict[str, type] = {
+    "segment": Silhouette,
+    "carve": Reconstruction,
+    "classify": dict,
+    "align": Alignment,
+    "bcps": BcpsPoints,
+    "evaluate": Evaluation,
+}
 
 #: Verdict of a capture cancelled between stages (never written, never a history row).
 ABORTED = "aborted"
@@ -56,10 +83,15 @@ def _summary(ctx: InspectionContext) -> dict[str, Any]:
             "fitness": float(ctx.alignment.fitness),
             "rmse_mm": float(ctx.alignment.rmse_mm),
         }
+        if ctx.alignment.confidence is not None:
+            # How firmly the images fix the turn about the part's axis of near-symmetry.
+            stats["alignment"]["pose_confidence"] = ctx.alignment.confidence.to_json()
     if ctx.bcps is not None and ctx.bcps.size is not None:
         # What the selection was made against: the part's best-fit size (scale 0.98: 2 % small).
         stats["size_fit"] = ctx.bcps.size.to_json()
     if ctx.evaluation is not None:
+        if ctx.evaluation.summary is not None:  # its class may be the variant's own (same fields)
+            stats.update(EvaluationSummary.to_json(ctx.evaluation.summary))
         stats.update(ctx.evaluation.stats)
     if ctx.capture.truth is not None:
         from inspector.truth import truth_stats
@@ -96,40 +128,67 @@ def inspect_capture(
         Verdict ``"pass"``/``"fail"`` from the evaluate stage (``"pass"`` when the recipe has
         none), ``"error"`` with a one-line reason naming the stage, or ``"aborted"``.
     """
-    ctx = InspectionContext(capture=capture, reference=reference, tolerance=recipe.tolerance)
+    ctx = InspectionContext(capture=capture, reference=reference, tolerance=recipe.tolerance,
+                            settings=recipe.plugins)
     timings: dict[str, float] = {} if load_s is None else {"load": load_s}
+    hooks = _Hooks(pm, recipe)
+    extras_by: dict[str, str] = {}  # extras key -> the step that set it last
     # "total" includes the time spent reading the capture, when known.
     t_start = time.perf_counter() - (load_s or 0.0)
+
+    def failed(reason: str, trace: str | None = None) -> Outcome:
+        timings["total"] = time.perf_counter() - t_start
+        res = _error_result(capture.name, recipe, reason, timings, capture)
+        return Outcome(hooks.into(res), ctx, trace)
+
     for step in recipe.steps:
         if should_abort is not None and should_abort():
             timings["total"] = time.perf_counter() - t_start
             aborted = _error_result(capture.name, recipe, f"cancelled before stage {step.name}", timings, capture)
             return Outcome(dataclasses.replace(aborted, verdict=ABORTED), ctx)
-        pm.before_stage(ctx, step.spec, step.name)
+        hooks.add(pm.before_stage(ctx, step.spec, step.name))
         t0 = time.perf_counter()
         try:
             new = step.spec.run(ctx, step.params)
         except Exception as exc:  # noqa: BLE001 - one capture must never stop the batch
             timings[step.name] = time.perf_counter() - t0
-            timings["total"] = time.perf_counter() - t_start
-            pm.on_stage_error(ctx, step.spec, step.name, exc)
+            hooks.add(pm.on_stage_error(ctx, step.spec, step.name, exc))
             if isinstance(exc, InspectorError):
-                reason, trace = f"{step.name}: {exc}", None
-            else:
-                reason = f"{step.name}: internal error {type(exc).__name__}: {' '.join(str(exc).split())}"
-                trace = traceback.format_exc()
-            return Outcome(_error_result(capture.name, recipe, reason, timings, capture), ctx, trace)
+                return failed(f"{step.name}: {exc}")
+            reason = f"{step.name}: internal error {type(exc).__name__}: {' '.join(str(exc).split())}"
+            return failed(reason, traceback.format_exc())
         timings[step.name] = time.perf_counter() - t0
+        problem = check_output(new, step.spec)
+        if problem is not None:  # a plugin's bug, named: the batch goes on
+            err = StageError(f"{step.name}: stage {step.spec.name} of {pm.stage_plugin(step.spec.name)} {problem}")
+            hooks.add(pm.on_stage_error(ctx, step.spec, step.name, err))
+            return failed(str(err))
+        for key, value in new.extras.items():
+            if key not in ctx.extras or ctx.extras[key] is not value:
+                extras_by[str(key)] = step.name
         ctx = new
-        pm.after_stage(ctx, step.spec, step.name, timings[step.name])
+        hooks.stage_budget(step.name, step.spec, timings[step.name])
+        hooks.add(pm.after_stage(ctx, step.spec, step.name, timings[step.name]))
     timings["total"] = time.perf_counter() - t_start
+    try:
+        result = _result(ctx, capture, recipe, timings, extras_by, hooks.warnings)
+    except Exception as exc:  # noqa: BLE001 - a stage's output the summary cannot read: that capture only
+        reason = f"internal error summarising the result: {type(exc).__name__}: {' '.join(str(exc).split())}"
+        return failed(reason, traceback.format_exc())
+    return Outcome(hooks.into(result), ctx)
+
+
+def _result(ctx: InspectionContext, capture: Capture, recipe: Recipe, timings: dict[str, float],
+            extras_by: Mapping[str, str], warnings: list[str]) -> InspectionResult:
     ev = ctx.evaluation
     pose = ctx.alignment.pose if ctx.alignment is not None else None
-    result = InspectionResult(
+    extras, bad = json_extras(ctx.extras, extras_by)
+    warnings.extend(bad)
+    return InspectionResult(
         capture=capture.name,
         recipe=recipe.name,
         verdict=ev.verdict if ev is not None else "pass",
-        error=None,
+        error=ev.error if ev is not None else None,
         timings_s=timings,
         pose=pose,
         stats=_summary(ctx),
@@ -140,8 +199,188 @@ def inspect_capture(
         metadata=dict(capture.metadata),
         recipe_path=_path(recipe),
         recipe_sha256=recipe.sha256,
+        summary=ev.summary if ev is not None else None,
+        extras=extras,
     )
-    return Outcome(result, ctx)
+
+
+def check_output(new: object, spec: StageSpec) -> str | None:
+    """What is wrong with what stage ``spec`` returned, in words, or None.
+
+    A stage returns an :class:`InspectionContext` whose output for its kind
+    (:data:`inspector.registry.OUTPUTS`) is set and of its type, with ``extras`` a dict; an
+    evaluate stage's evaluation has a verdict ``pass``/``fail`` and a summary of the class
+    it declared, its contract fields set.
+    """
+    if not isinstance(new, InspectionContext):
+        return f"returned {type(new).__name__}, not an InspectionContext (return context.evolve(...))"
+    if not isinstance(new.extras, dict):
+        return f"set extras to a {type(new.extras).__name__}, not a dict"
+    attr = OUTPUTS[spec.kind]
+    value = getattr(new, attr)
+    expected = _OUTPUT_TYPES[spec.kind]
+    if value is None:
+        return f"did not set {attr} (the output of a {spec.kind} stage)"
+    if spec.kind == "segment":
+        if not isinstance(value, tuple) or not all(isinstance(v, Silhouette) for v in value):
+            return f"set {attr} to {type(value).__name__}, not a tuple of Silhouette"
+    elif not isinstance(value, expected):
+        return f"set {attr} to a {type(value).__name__}, not a {expected.__name__}"
+    if isinstance(value, Evaluation):
+        if value.verdict not in ("pass", "fail", "error"):
+            return f"set the verdict {value.verdict!r}, not 'pass', 'fail' or 'error'"
+        if (value.verdict == "error") != bool(value.error):
+            return "set the verdict 'error' without its reason (Evaluation(error=...)), or a reason without it"
+        summary = value.summary
+        if summary is None:
+            return "set no evaluation summary (Evaluation(summary=EvaluationSummary(...)))"
+        if spec.summary is not None and not isinstance(summary, spec.summary):
+            return f"set a summary of type {type(summary).__name__}, not the declared {spec.summary.__name__}"
+        unset = [f for f in SUMMARY_FIELDS if not hasattr(summary, f)
+                 or (getattr(summary, f) is None and f != "deviation_mm")]
+        if unset:
+            return f"left the summary's {unset[0]!r} unset"
+        return _summary_types(summary)
+    return None
+
+
+def _summary_types(s: Any) -> str | None:
+    """What of an evaluation summary's contract fields has the wrong type, or None."""
+    def number(x: Any) -> bool:
+        return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+
+    if not number(s.n_points) or s.n_points != int(s.n_points) or s.n_points < 0:
+        return f"set the summary's 'n_points' to {s.n_points!r}, not a count"
+    if not number(s.out_of_tolerance_points) or s.out_of_tolerance_points != int(s.out_of_tolerance_points):
+        return f"set the summary's 'out_of_tolerance_points' to {s.out_of_tolerance_points!r}, not a count"
+    if not number(s.within_tolerance):
+        return f"set the summary's 'within_tolerance' to {s.within_tolerance!r}, not a number"
+    if s.deviation_mm is not None and not isinstance(s.deviation_mm, DeviationStats):
+        return f"set the summary's 'deviation_mm' to a {type(s.deviation_mm).__name__}, not a DeviationStats"
+    tol = s.tolerance_mm
+    if not isinstance(tol, (tuple, list)) or len(tol) != 2 or not all(map(number, tol)):
+        return f"set the summary's 'tolerance_mm' to {tol!r}, not (lower, upper)"
+    return None
+
+
+#: Nesting depth of an extras value beyond which it is not kept (as JSON input files).
+_EXTRAS_DEPTH = 64
+
+
+class _NotJson(Exception):
+    def __init__(self, where: str, what: str) -> None:
+        super().__init__(f"{where} is {what}")
+
+
+def _json_value(value: Any, where: str, depth: int = 0) -> Any:
+    """``value`` as JSON (numpy to Python, non-finite floats to None), or _NotJson naming
+    the first part of it that is not."""
+    if depth > _EXTRAS_DEPTH:
+        raise _NotJson(where, f"nested deeper than {_EXTRAS_DEPTH} levels")
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        f = float(value)
+        return f if math.isfinite(f) else None
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "biuf":
+            raise _NotJson(where, f"an array of dtype {value.dtype}, not JSON")
+        return _json_value(value.tolist(), where, depth)
+    if isinstance(value, Mapping):
+        out = {}
+        for k, v in value.items():
+            if not isinstance(k, str):
+                raise _NotJson(f"{where}[{k!r}]", "under a key that is not a string, not JSON")
+            out[k] = _json_value(v, f"{where}[{k!r}]", depth + 1)
+        return out
+    if isinstance(value, (list, tuple)):
+        return [_json_value(v, f"{where}[{i}]", depth + 1) for i, v in enumerate(value)]
+    raise _NotJson(where, f"of type {type(value).__name__}, not JSON")
+
+
+def json_extras(extras: Mapping[Any, Any], set_by: Mapping[str, str] | None = None) -> tuple[dict[str, Any], list[str]]:
+    """The JSON-safe part of ``context.extras``, and a warning for each key left out.
+
+    Parameters
+    ----------
+    extras : mapping
+        What the stages put in ``context.extras``.
+    set_by : mapping, optional
+        Key -> the recipe step that set it (named in the warnings).
+
+    Returns
+    -------
+    (dict, list of str)
+        Every key whose value is JSON (numpy numbers and arrays converted, NaN and
+        infinities as None); one warning line per key that is not, naming the step and the key.
+    """
+    out: dict[str, Any] = {}
+    warnings: list[str] = []
+    for key, value in extras.items():
+        step = (set_by or {}).get(str(key))
+        who = f"stage {step!r}" if step else "a stage"
+        if not isinstance(key, str):
+            warnings.append(f"{who}: extras[{key!r}] is under a key that is not a string, not JSON; "
+                            "left out of result.json and history")
+            continue
+        try:
+            out[key] = _json_value(value, f"extras[{key!r}]")
+        except _NotJson as e:
+            warnings.append(f"{who}: {e}; left out of result.json and history")
+    return out, warnings
+
+
+class _Hooks:
+    """One capture's lifecycle-hook times (summed per plugin and hook) and budget warnings."""
+
+    def __init__(self, pm: PluginManager, recipe: Recipe) -> None:
+        self.pm = pm
+        self.budget = recipe.budget
+        self.times: dict[str, float] = {}
+        self.warnings: list[str] = []
+
+    def add(self, times: Mapping[str, float]) -> None:
+        for key, seconds in times.items():
+            self.times[key] = self.times.get(key, 0.0) + seconds
+            if seconds > self.budget.hook_s:
+                self.warnings.append(hook_warning(key, self.budget.hook_s))
+
+    def stage_budget(self, step: str, spec: StageSpec, seconds: float) -> None:
+        if seconds > self.budget.stage_s:
+            self.warnings.append(
+                f"stage {step!r} ({spec.name} of {self.pm.stage_plugin(spec.name)}) took longer than its "
+                f"{self.budget.stage_s:g} s budget (timings_s[{step!r}]); raise it with [budget] stage_s or "
+                f"{BUDGET_ENV['stage_s']}")
+
+    def into(self, result: InspectionResult) -> InspectionResult:
+        """``result`` with the hook times in ``timings_s`` and the warnings in ``stats``."""
+        return _with(result, self.times, self.warnings)
+
+
+def hook_warning(key: str, budget_s: float) -> str:
+    """The budget warning of hook time ``key`` (``hook:PLUGIN:HOOK``), one line, the same
+    for every capture (printed once per run)."""
+    _, plugin, hook = key.split(":", 2)
+    who = "a hook wrapper" if plugin == "*" else f"plugin {plugin!r}"
+    return (f"{who} took longer than the {budget_s:g} s hook budget in inspector_{hook} (timings_s[{key!r}]); "
+            f"raise it with [budget] hook_s or {BUDGET_ENV['hook_s']}")
+
+
+def _with(result: InspectionResult, times: Mapping[str, float], warnings: Iterable[str]) -> InspectionResult:
+    """``result`` with ``times`` added to its timings and ``warnings`` to ``stats.warnings``
+    (each once)."""
+    warnings = list(warnings)
+    if not times and not warnings:
+        return result
+    stats = dict(result.stats)
+    if warnings:
+        old = list(stats.get("warnings", ()))
+        stats["warnings"] = old + [w for w in dict.fromkeys(warnings) if w not in old]
+    return dataclasses.replace(result, timings_s={**result.timings_s, **times}, stats=stats)
 
 
 def _path(recipe: Recipe) -> str | None:
@@ -177,7 +416,8 @@ def run_batch(
     Outputs are written (when ``outdir`` is given) and ``inspector_on_result`` is called
     before each outcome is yielded, so nothing is lost if a later capture fails. An aborted
     capture (``should_abort``) is yielded unwritten and ends the batch: the acquisition
-    iterator is not resumed, so a hot folder keeps that capture in its inbox.
+    iterator is not resumed, so a hot folder keeps that capture (in ``INBOX/processing/``,
+    inspected again at the watcher's next start).
     """
     from inspector import outputs
 
@@ -206,11 +446,36 @@ def run_batch(
                 outcome = _unwritten(outcome, str(exc))
             else:
                 outcome = dataclasses.replace(outcome, folder=folder)
-        pm.on_result(outcome.result, folder)
+                _export_csv(outcome.result, folder, recipe.outputs.csv)
+        times = pm.on_result(outcome.result, folder)
+        if times:  # the hooks' time (and budget) into the result, and its result.json
+            slow = [hook_warning(k, recipe.budget.hook_s) for k, t in times.items() if t > recipe.budget.hook_s]
+            outcome = dataclasses.replace(outcome, result=_with(outcome.result, times, slow))
+            if folder is not None:
+                outputs.rewrite_result_json(outcome.result, folder)
         if progress is not None:
             progress(outputs.one_line(outcome.result))
         yield outcome
-        outcome = capture = None  # not alive while the next capture is read and inspected
+        outcome = capture = None  # type: ignore[assignment]  # not alive while the next capture is read and inspected
+
+
+def _export_csv(result: InspectionResult, folder: Path, csv: bool) -> None:
+    """The CSV exports of a written result (``[outputs] csv``, ``--csv``), or no stale ones
+    from an earlier run. They are extras: a failure (a full disk) is one warning line, the
+    result stands."""
+    import sys
+
+    from inspector import exports
+    from inspector.names import printable
+
+    try:
+        if csv:
+            exports.write_csv(result, folder)
+        else:
+            exports.remove_csv(folder)
+    except OSError as exc:
+        print(f"inspector: warning: capture '{printable(result.capture)}': CSV export not written: "
+              f"{exc.filename or folder}: {exc.strerror or exc}", file=sys.stderr, flush=True)
 
 
 def _unwritten(outcome: Outcome, reason: str) -> Outcome:

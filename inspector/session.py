@@ -11,7 +11,8 @@ by registering a plugin on :attr:`Session.pm`.
 
 Another thread may call :meth:`Session.stop` (end the run after the capture in progress) or
 :meth:`Session.cancel` (end it between two stages: that capture's verdict is ``"aborted"``,
-nothing is written for it, no history row, and a hot folder keeps it in its inbox).
+nothing is written for it, no history row, and a hot folder keeps it: in
+``INBOX/processing/``, first in line when the watch starts again).
 """
 
 from __future__ import annotations
@@ -177,14 +178,19 @@ class Session:
     # -- building --------------------------------------------------------------------------
     @classmethod
     def open(cls, recipe: str | Path, out: str | Path, *, reference: str | None = None,
-             pm: PluginManager | None = None) -> Session:
+             pm: PluginManager | None = None, csv: bool = False) -> Session:
         """Load and validate ``recipe`` (and its reference); RecipeError on any problem.
 
         ``out`` is checked and created by :meth:`run`, not here: a front end may open a
-        session before it knows where results go.
+        session before it knows where results go. ``csv``: write the CSV exports whatever
+        the recipe's ``[outputs] csv`` says (``inspector run --csv``).
         """
+        import dataclasses
+
         pm = pm if pm is not None else create_plugin_manager()
         rec = load_recipe(recipe, pm, reference=reference)
+        if csv:
+            rec = dataclasses.replace(rec, outputs=dataclasses.replace(rec.outputs, csv=True))
         ref = None
         if rec.reference is not None:
             try:
@@ -255,13 +261,15 @@ class Session:
                 raise RecipeError(f"--out {self.outdir}: inside the inbox {inbox} (its result folders would be taken for captures)")
             outdir = _result_folder(self.outdir)
             if hasattr(driver, "taken"):  # a reused capture name must not overwrite a result
-                driver.taken = lambda name: (outdir / name).exists()
+                self._hand_off(driver, outdir)
             if hasattr(driver, "sleep"):  # a waiting driver notices stop() and cancel()
                 driver.sleep = self._waker(driver.sleep)
-            self.pm.on_run_start(self.recipe, outdir, what)
+            slow = self._slow(self.pm.on_run_start(self.recipe, outdir, what))
             summary = None
             try:
                 self._emit(RunStarted(what, total, outdir, inbox))
+                for w in slow:
+                    self._emit(Warned("run", w))
                 batch = runner.run_batch(self.recipe, self._until_stopped(acquisitions, source.limit), self.pm,
                                   reference=self.reference, outdir=outdir, should_abort=self._cancel.is_set)
                 i = 0
@@ -288,13 +296,14 @@ class Session:
                 if inbox is None:
                     ended = "interrupted"
                     raise
-                ended = "interrupted"  # Ctrl-C is how a watch ends: the capture in progress stays in the inbox
+                ended = "interrupted"  # Ctrl-C is how a watch ends: the capture in progress stays in INBOX/processing/
             except BaseException:
                 ended = "failed"
                 raise
             finally:
                 summary = RunSummary(dict(counts), ended, outdir, inbox, tuple(warned))
-                self.pm.on_run_end(self.recipe, outdir, summary)
+                for w in self._slow(self.pm.on_run_end(self.recipe, outdir, summary)):
+                    self._emit(Warned("run", w))
                 self._emit(RunEnded(summary))
             return summary
         finally:
@@ -302,6 +311,32 @@ class Session:
                 driver.close()
             elif ended in ("failed", "interrupted"):
                 self.close()  # a driver that raised is not trusted for the next run
+
+    def _slow(self, times: Mapping[str, float]) -> list[str]:
+        """Budget warnings for a run hook's times (``inspector_on_run_start``/``_end``)."""
+        budget = self.recipe.budget.hook_s
+        return [runner.hook_warning(k, budget) for k, t in times.items() if t > budget]
+
+    def _hand_off(self, driver: Any, outdir: Path) -> None:
+        """Tell a driver that files capture folders away (the hot folder) what is downstream:
+        which names are taken (a result folder, or a history row), whether a capture is
+        settled (its result.json and, with the history plugin, its history row), and how to
+        discard what an unfinished inspection left (after a crash)."""
+        import os
+
+        from inspector import outputs
+
+        def recorded(name: str) -> bool | None:
+            if "history" not in self.pm.plugin_names():
+                return None
+            from inspector_plugins.history import recorded as in_history
+
+            return in_history(outdir, name)
+
+        driver.taken = lambda name: os.path.lexists(outdir / name) or recorded(name) is True
+        if hasattr(driver, "settled"):
+            driver.settled = lambda name: outputs.result_written(outdir, name) and recorded(name) is not False
+            driver.discard = lambda name: outputs.discard_result(outdir, name)
 
     def _open_source(self, source: Source) -> tuple[Any, Iterator[Acquisition], int | None, str, bool]:
         """(driver, acquisitions, total, what, whether this run owns the driver)."""
@@ -325,6 +360,7 @@ class Session:
             self._open_stream()
         count = getattr(self.recipe.driver.params, "count", None)
         total = source.limit or (count if isinstance(count, int) and count > 0 else None)
+        assert self._stream is not None
         return self._driver, self._stream, total, f"driver {self.recipe.driver.spec.name}", False
 
     def _open_stream(self) -> Iterator[Acquisition]:

@@ -20,7 +20,7 @@ import numpy as np
 from inspector import hookimpl
 from inspector.kernels.bcps import confidence
 from inspector.kernels.deviation import cluster_points, deviation_stats
-from inspector.model import Defect, Evaluation
+from inspector.model import Defect, DeviationStats, Evaluation, EvaluationSummary, RegionSummary
 from inspector.params import param
 from inspector.pipeline import InspectionContext
 from inspector.registry import StageRegistry, StageSpec
@@ -128,8 +128,46 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
             name: {"n_points": int((region == k).sum()), "deviation_mm": deviation_stats(dev[region == k])}
             for k, name in enumerate(names)
         }
+    # The typed contract (what result.json's summary keys, the history and the CSV read):
+    # the default band's points first, then each named region's.
+    bands = [("default", tol.default)] + [(r.name, r.band) for r in tol.regions]
+    regions = tuple(
+        RegionSummary(name, band.lower, band.upper, int((region == k - 1).sum()), int(out[region == k - 1].sum()),
+                      DeviationStats.of(dev[region == k - 1]))
+        for k, (name, band) in enumerate(bands)
+    )
+    summary = EvaluationSummary(
+        n_points=int(n),
+        deviation_mm=DeviationStats.of(dev),
+        tolerance_mm=(tol.default.lower, tol.default.upper),
+        within_tolerance=stats["within_tolerance"],
+        out_of_tolerance_points=int(out.sum()),
+        regions=regions,
+        point_region=region + 1,
+    )
     verdict = "fail" if defects else "pass"
-    return ctx.evolve(evaluation=Evaluation(verdict, stats, tuple(defects), out))
+    error = _unconfirmed(ctx, defects)
+    if error is not None:
+        # The defects stand on a turn the images do not fix: report them as unconfirmed,
+        # never as a defect list an operator would go looking for.
+        stats["unconfirmed_defects"] = [d.to_json() for d in defects]
+        verdict, defects = "error", []
+    return ctx.evolve(evaluation=Evaluation(verdict, stats, tuple(defects), out, summary=summary, error=error))
+
+
+def _unconfirmed(ctx: InspectionContext, defects: list[Defect]) -> str | None:
+    """Why ``defects`` cannot be trusted, or None: the pose's turn about the part's axis of
+    near-symmetry is ambiguous (another turn fits the points about as well), so the defects
+    could be the part turned, not damaged. A size error is still stated: it does not depend
+    on the turn."""
+    conf = ctx.alignment.confidence if ctx.alignment is not None else None
+    if not defects or conf is None or not conf.ambiguous:
+        return None
+    size = ctx.bcps.size if ctx.bcps is not None else None
+    sized = "" if size is None or size.is_identity else f"; the part measures {100 * (size.scale - 1):+.1f} % in size"
+    return (f"pose uncertain: a turn of {conf.runner_up_deg:+.0f} deg about the part's axis fits the points about as "
+            f"well (pinned by {conf.margin_points} points), so {len(defects)} defect(s) could be the part turned"
+            f"{sized}; check the part's keying features are visible to the cameras")
 
 
 @hookimpl
@@ -141,5 +179,6 @@ def inspector_register_stages(registry: StageRegistry) -> None:
             params=EvaluateParams,
             requires=("bcps",),
             doc="Signed deviations against tolerance bands (global and per region), defect clusters, verdict",
+            summary=EvaluationSummary,
         )
     )

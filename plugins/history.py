@@ -26,14 +26,18 @@ import numpy as np
 from inspector import hookimpl
 from inspector.errors import InputError
 from inspector.model import InspectionResult
+from inspector.registry import CommandRegistry
 
-__all__ = ["HISTORY_FILE", "SCHEMA", "record", "read_history", "read_table", "tally", "draw_history", "plot_history"]
+__all__ = ["HISTORY_FILE", "SCHEMA", "record", "recorded", "read_history", "read_table", "tally", "draw_history", "plot_history"]
 
 #: The history database, in the run's OUTDIR (beside the result folders).
 HISTORY_FILE = "history.sqlite"
 
 #: Version 1. ``inspected_at`` is UTC ISO-8601; deviations in mm; ``metadata`` is capture.json
-#: (minus polarity) as JSON.
+#: (minus polarity) as JSON; ``extras`` what the stages put in ``context.extras`` (JSON, the
+#: result's ``extras``; added compatibly: :func:`record` adds the column to an older file).
+#: The deviation and tolerance columns come from the evaluate stage's typed summary
+#: (:class:`inspector.model.EvaluationSummary`), whichever evaluate variant ran.
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS inspections (
     id INTEGER PRIMARY KEY,
@@ -54,7 +58,8 @@ CREATE TABLE IF NOT EXISTS inspections (
     tolerance_upper_mm REAL,
     total_s REAL,
     result_dir TEXT,
-    metadata TEXT
+    metadata TEXT,
+    extras TEXT
 );
 CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture);
 CREATE INDEX IF NOT EXISTS inspections_part ON inspections (part_id);
@@ -98,9 +103,10 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
     ``outdir`` is the run's result folder (the parent of the capture's own folder).
     """
     meta = dict(result.metadata or {})
-    dev = result.stats.get("deviation_mm", {}) if result.stats else {}
+    summary = result.summary  # the evaluate stage's contract; None: no evaluate stage, or an error
+    dev = summary.deviation_mm if summary is not None else None
     worst = max((d.worst_mm for d in result.defects), key=abs, default=None)
-    tol = result.stats.get("tolerance_mm", {}) if result.stats else {}
+    tol = summary.tolerance_mm if summary is not None else (None, None)
     row = (
         (now or datetime.now(timezone.utc)).isoformat(timespec="milliseconds"),
         result.capture,
@@ -109,26 +115,29 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
         result.recipe,
         result.verdict,
         result.error,
-        result.stats.get("n_points") if result.stats else None,
-        dev.get("mean"),
-        dev.get("min"),
-        dev.get("max"),
+        summary.n_points if summary is not None else None,
+        dev.mean if dev is not None else None,
+        dev.min if dev is not None else None,
+        dev.max if dev is not None else None,
         len(result.defects),
         worst,
-        tol.get("lower"),
-        tol.get("upper"),
+        tol[0],
+        tol[1],
         result.timings_s.get("total"),
         result.capture,
         json.dumps(_finite(meta), default=str, sort_keys=True, allow_nan=False),
+        json.dumps(_finite(dict(result.extras)), default=str, sort_keys=True, allow_nan=False) if result.extras else None,
     )
     con = _connect(outdir / HISTORY_FILE)
     try:
         con.executescript(SCHEMA)
+        if "extras" not in {r[1] for r in con.execute("PRAGMA table_info(inspections)")}:  # a file from before
+            con.execute("ALTER TABLE inspections ADD COLUMN extras TEXT")
         cur = con.execute(
             "INSERT INTO inspections (inspected_at, capture, part_id, triggered_at, recipe, verdict, error, n_points,"
             " deviation_mean_mm, deviation_min_mm, deviation_max_mm, n_defects, worst_mm, tolerance_lower_mm,"
-            " tolerance_upper_mm, total_s, result_dir, metadata)"
-            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            " tolerance_upper_mm, total_s, result_dir, metadata, extras)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
             row,
         )
         rid = int(cur.lastrowid)
@@ -140,6 +149,25 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
     finally:
         con.close()
     return rid
+
+
+def recorded(outdir: Path, capture: str) -> bool | None:
+    """Whether ``outdir``'s history has a row for ``capture``; None when it cannot be read
+    (a corrupt file: then no row could be written either). What a hot folder asks after a
+    crash, to tell a result that was recorded from one that was not."""
+    path = Path(outdir) / HISTORY_FILE
+    if not path.is_file():
+        return False
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+        try:
+            if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'inspections'").fetchone() is None:
+                return False
+            return con.execute("SELECT 1 FROM inspections WHERE capture = ? LIMIT 1", (capture,)).fetchone() is not None
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
 
 
 def read_history(outdir: Path, *, last: int | None = None) -> list[dict[str, Any]]:
@@ -295,3 +323,11 @@ def run(args) -> int:
     if args.plot:
         print(f"wrote {args.plot}")
     return 0
+
+
+@hookimpl
+def inspector_register_commands(registry: CommandRegistry) -> None:
+    """``inspector history OUTDIR``."""
+    from inspector.registry import CommandSpec
+
+    registry.add(CommandSpec("history", add_parser, run, "the inspections recorded in OUTDIR/history.sqlite, the yield"))

@@ -29,12 +29,15 @@ import json
 import sys
 import time
 import traceback
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from inspector.manager import PluginManager
 
 __all__ = ["plugin_manager", "main"]
 
 
-def plugin_manager() -> Any:
+def plugin_manager() -> PluginManager:
     """The entry-point plugin manager, plus the hardware drivers if not yet registered."""
     import inspector_drivers.aravis as aravis_mod
     import inspector_drivers.genicam as genicam_mod

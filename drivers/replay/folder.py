@@ -16,6 +16,15 @@ or the key (``"rig.json: camera cam03: R is not a rotation matrix (det=-1)"``,
 ``"images/cam02.png: size 1000x1024, rig.json says 1024x1024"``). No json, numpy or cv2
 exception escapes.
 
+Nothing is decoded before it passes the input bounds (:mod:`inspector.limits`): JSON files
+are measured before they are parsed; a camera may declare at most ``INSPECTOR_MAX_IMAGE_PIXELS``
+pixels and a rig ``INSPECTOR_MAX_CAPTURE_PIXELS`` together; an image file is measured before
+it is read (at most :func:`~inspector.limits.image_file_bytes` of its camera's size) and its
+PNG header (:func:`png_header`) must declare the camera's size and a valid bit depth and
+colour type. An image that is a link, or lies behind one, leading out of the capture folder
+is refused (``"images/cam03.png: camera cam03's image is a link to /x/other/images/cam03.png,
+outside the capture folder ..."``): another capture's image would be inspected as this one's.
+
 What :func:`read_capture` returns
 ---------------------------------
 - ``Capture.rig``: cameras in the order of ``rig.json``, in mm (``"units": "m"`` multiplies
@@ -47,6 +56,8 @@ import json
 import math
 import os
 import re
+import struct
+import zlib
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
@@ -57,7 +68,7 @@ import numpy as np
 
 from inspector.errors import CaptureError
 from inspector.kernels.camera import is_rotation
-from inspector.limits import limit, load_json
+from inspector.limits import image_file_bytes, limit, load_json, read_bounded
 from inspector.model import Camera, Capture, Rig, Truth
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -78,6 +89,8 @@ __all__ = [
     "is_capture_folder",
     "to_rgb_order",
     "decode_image",
+    "png_header",
+    "is_complete_png",
     "save_capture",
 ]
 
@@ -97,6 +110,9 @@ _UNIT_SCALE = {"mm": 1.0, "m": 1000.0}
 _CAMERA_KEYS = ("name", "width", "height", "K", "R", "t")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _PNG_IEND = b"IEND\xaeB`\x82"  # chunk type + its (constant) CRC
+#: PNG colour type -> (what it is, the bit depths the PNG specification allows for it).
+_PNG_COLOURS = {0: ("grey", (1, 2, 4, 8, 16)), 2: ("RGB", (8, 16)), 3: ("palette", (1, 2, 4, 8)),
+                4: ("grey + alpha", (8, 16)), 6: ("RGBA", (8, 16))}
 _BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
 
 
@@ -201,6 +217,10 @@ def _parse_camera(cam: Any, index: int, label: str, scale: float) -> Camera:
     name = cam["name"]
     width = _positive_int(cam["width"], where, "width")
     height = _positive_int(cam["height"], where, "height")
+    most = limit("MAX_IMAGE_PIXELS")
+    if width * height > most:  # before any image is read: its decoded size follows from this
+        raise CaptureError(f"{where}: {width}x{height} is {width * height} pixels, more than the {most} "
+                           "a camera may have (INSPECTOR_MAX_IMAGE_PIXELS)")
     K = _numbers(cam["K"], where, "K", ((3, 3),))
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise CaptureError(f"{where}: K has fx={_fmt(K[0, 0])}, fy={_fmt(K[1, 1])}; both must be > 0")
@@ -245,6 +265,10 @@ def parse_rig(data: Any, label: str = RIG_FILE) -> Rig:
     if len(cams) > most:
         raise CaptureError(f"{label}: {len(cams)} cameras, more than the {most} a rig may have (INSPECTOR_MAX_CAMERAS)")
     cameras = [_parse_camera(c, i, label, _UNIT_SCALE[units]) for i, c in enumerate(cams)]
+    total, most = sum(c.width * c.height for c in cameras), limit("MAX_CAPTURE_PIXELS")
+    if total > most:
+        raise CaptureError(f"{label}: its {len(cameras)} cameras have {total} pixels together, more than the "
+                           f"{most} a capture may have (INSPECTOR_MAX_CAPTURE_PIXELS)")
     seen: dict[str, int] = {}
     for i, c in enumerate(cameras):
         if c.name in seen:
@@ -351,28 +375,119 @@ def _list_pngs(folder: Path, sub: str, rig: Rig) -> dict[str, Path]:
     return found
 
 
-def decode_image(path: Path, label: str, error: type[Exception] = CaptureError, *, png_only: bool = True) -> np.ndarray:
+def png_header(data: bytes, label: str, error: type[Exception] = CaptureError) -> tuple[int, int, int, int]:
+    """``(width, height, bit depth, colour type)`` from the signature and header chunk that
+    start the PNG bytes ``data`` (the first 33 bytes are enough).
+
+    Checked as the PNG specification defines them, before anything is decoded: the
+    signature, a first chunk ``IHDR`` of 13 bytes with a correct checksum, a size of at least
+    1 x 1, a bit depth allowed for the colour type (grey 1-16, RGB 8/16, palette 1-8, grey +
+    alpha 8/16, RGBA 8/16), compression and filter method 0, interlace 0 or 1.
+
+    Raises ``error`` with a one-line message starting with ``label``.
+    """
+    if not data:
+        raise error(f"{label}: empty file")
+    if not data.startswith(_PNG_SIGNATURE):
+        raise error(f"{label}: not a PNG file")
+    if len(data) < 33:
+        raise error(f"{label}: truncated PNG (its header is cut, {len(data)} bytes)")
+    length, kind = struct.unpack(">I4s", data[8:16])
+    if length != 13 or kind != b"IHDR":
+        raise error(f"{label}: corrupt PNG (its first chunk is not a 13-byte header)")
+    if zlib.crc32(data[12:29]) != struct.unpack(">I", data[29:33])[0]:
+        raise error(f"{label}: corrupt PNG header (checksum mismatch)")
+    width, height, depth, colour, compression, filtering, interlace = struct.unpack(">IIBBBBB", data[16:29])
+    if not (0 < width < 2**31 and 0 < height < 2**31):
+        raise error(f"{label}: corrupt PNG header (size {width}x{height})")
+    if colour not in _PNG_COLOURS:
+        raise error(f"{label}: corrupt PNG header (colour type {colour})")
+    what, depths = _PNG_COLOURS[colour]
+    if depth not in depths:
+        raise error(f"{label}: corrupt PNG header ({depth}-bit {what}; {what} is {'/'.join(map(str, depths))}-bit)")
+    if compression or filtering or interlace > 1:
+        raise error(f"{label}: corrupt PNG header (compression {compression}, filter {filtering}, interlace {interlace})")
+    return width, height, depth, colour
+
+
+def is_complete_png(path: str | os.PathLike[str]) -> bool:
+    """Whether ``path`` is a whole PNG file: a valid header (:func:`png_header`) and the
+    final ``IEND`` chunk at its end. Reads a few bytes at each end; never raises.
+
+    What a hot folder asks before it reads a capture: a writer that stalls in the middle of
+    an image leaves a file without its end.
+    """
+    import stat
+
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))  # a FIFO never blocks
+        with os.fdopen(fd, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                return False
+            png_header(f.read(33), "")
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(0, size - 1024))
+            return f.read(1024).rfind(_PNG_IEND) >= 0
+    except (OSError, CaptureError, ValueError):
+        return False
+
+
+def _inside(path: Path, root: str, label: str, camera: str) -> None:
+    """Refuse an image that is, or lies behind, a link leading out of the capture folder
+    ``root`` (resolved): another capture's image would be inspected as this camera's."""
+    real = os.path.realpath(path)
+    if os.path.commonpath([real, root]) != root:
+        raise CaptureError(f"{label}: camera {camera}'s image is a link to {real}, outside the capture folder "
+                           "(copy the file into the capture)")
+
+
+def decode_image(
+    path: Path,
+    label: str,
+    error: type[Exception] = CaptureError,
+    *,
+    png_only: bool = True,
+    size: tuple[int, int] | None = None,
+    camera: str | None = None,
+) -> np.ndarray:
     """Read and decode one image file strictly; raises ``error`` naming ``label``.
 
-    Returns cv2's array (BGR order, any dtype): callers check the pixel type and size.
-    A PNG must be complete (cv2 may return a partly decoded image for a cut file, so any
-    PNG whose IEND chunk, the last chunk of every complete PNG, is missing is refused).
+    Returns cv2's array (BGR order, any dtype): callers check the pixel type.
+
+    Nothing is decoded before the file passes the input bounds (:mod:`inspector.limits`): its
+    size is measured before it is read (at most :func:`~inspector.limits.image_file_bytes`
+    of ``size``, the ``(width, height)`` a rig declares for it, or of the largest image
+    allowed), and a PNG's header (:func:`png_header`) must declare exactly ``size`` (else at
+    most ``INSPECTOR_MAX_IMAGE_PIXELS`` pixels) with a valid bit depth and colour type
+    (``camera``: the camera the message names). A PNG
+    must be complete (cv2 may return a partly decoded image for a cut file, so any PNG whose
+    IEND chunk, the last chunk of every complete PNG, is missing is refused).
     """
     import cv2
 
     if not path.is_file():
         raise error(f"{label}: {'missing image' if not path.exists() else 'not a file'}")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise error(f"{label}: cannot be read ({exc.strerror or exc})") from None
+    if size is not None:
+        most, what = image_file_bytes(*size), f"a {size[0]}x{size[1]} image"
+    else:
+        most, what = image_file_bytes(limit("MAX_IMAGE_PIXELS"), 1), "an image"
+    data = read_bounded(path, label, most, error, what=what, variable="INSPECTOR_MAX_IMAGE_METADATA_BYTES")
     if not data:
         raise error(f"{label}: empty file")
     is_png = data.startswith(_PNG_SIGNATURE)
     if png_only and not is_png:
         raise error(f"{label}: not a PNG file")
-    if is_png and data.rfind(_PNG_IEND, max(0, len(data) - 1024)) < 0:
-        raise error(f"{label}: truncated PNG (no IEND chunk)")
+    if is_png:
+        width, height, _, _ = png_header(data, label, error)
+        if size is not None and (width, height) != tuple(size):
+            for_camera = f" for camera {camera}" if camera else ""
+            raise error(f"{label}: size {width}x{height}, {RIG_FILE} says {size[0]}x{size[1]}{for_camera}")
+        most = limit("MAX_IMAGE_PIXELS")
+        if size is None and width * height > most:
+            raise error(f"{label}: {width}x{height} is {width * height} pixels, more than the {most} "
+                        "an image may have (INSPECTOR_MAX_IMAGE_PIXELS)")
+        if data.rfind(_PNG_IEND, max(0, len(data) - 1024)) < 0:
+            raise error(f"{label}: truncated PNG (no IEND chunk)")
     try:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     except cv2.error:
@@ -382,20 +497,21 @@ def decode_image(path: Path, label: str, error: type[Exception] = CaptureError, 
     return img
 
 
-def _decode_png(path: Path, label: str, cam: Camera) -> np.ndarray:
+def _decode_png(path: Path, label: str, cam: Camera, root: str) -> np.ndarray:
     """Read one PNG strictly; returns uint8/uint16 grey (H, W), RGB or RGBA. Read-only."""
-    img = decode_image(path, label)
+    _inside(path, root, label, cam.name)
+    img = decode_image(path, label, size=(cam.width, cam.height), camera=cam.name)
     if img.dtype not in (np.uint8, np.uint16):
         raise CaptureError(f"{label}: unsupported pixel type {img.dtype}, expected 8- or 16-bit")
     h, w = img.shape[:2]
     if (w, h) != (cam.width, cam.height):
-        raise CaptureError(f"{label}: size {w}x{h}, {RIG_FILE} says {cam.width}x{cam.height}")
+        raise CaptureError(f"{label}: size {w}x{h}, {RIG_FILE} says {cam.width}x{cam.height} for camera {cam.name}")
     img = to_rgb_order(img, label, CaptureError)
     img.setflags(write=False)
     return img
 
 
-def _decode_all(jobs: list[tuple[Path, str, Camera]]) -> list[np.ndarray]:
+def _decode_all(jobs: list[tuple[Path, str, Camera, str]]) -> list[np.ndarray]:
     """Decode in a small thread pool (cv2 releases the GIL); first error in job order."""
     if not jobs:
         return []
@@ -450,8 +566,9 @@ def read_capture(folder: str | os.PathLike[str]) -> Capture:
     bg_files = _list_pngs(folder, BACKGROUND_DIR, rig)
     truth = _parse_truth(folder)
 
-    jobs = [(image_files[c.name], f"{IMAGES_DIR}/{c.name}.png", c) for c in rig]
-    jobs += [(bg_files[c.name], f"{BACKGROUND_DIR}/{c.name}.png", c) for c in rig if c.name in bg_files]
+    root = os.path.realpath(folder)  # every image must lie in it, links resolved
+    jobs = [(image_files[c.name], f"{IMAGES_DIR}/{c.name}.png", c, root) for c in rig]
+    jobs += [(bg_files[c.name], f"{BACKGROUND_DIR}/{c.name}.png", c, root) for c in rig if c.name in bg_files]
     arrays = _decode_all(jobs)
     n = len(rig)
     images = dict(zip(rig.names, arrays[:n]))

@@ -1,6 +1,7 @@
 """Driver ``sim``: a simulated 16-camera spherical rig rendering a (defective) part.
 
-Registered through the ``inspector`` entry-point group like any third-party driver.
+Registered through the ``inspector`` entry-point group like any third-party driver, with
+its sub-commands ``inspector simulate`` and ``inspector demo`` (:mod:`.commands`).
 Heavy imports happen only when a capture is rendered.
 """
 
@@ -10,7 +11,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from inspector import hookimpl
-from inspector.registry import Acquisition, DriverRegistry, DriverSpec
+from inspector.registry import Acquisition, CommandRegistry, DriverRegistry, DriverSpec
 from inspector_drivers.sim.simulate import SimParams
 
 
@@ -42,3 +43,11 @@ def inspector_register_drivers(registry: DriverRegistry) -> None:
             doc="Simulated spherical rig: a built-in or given part, random pose, defects, anti-aliased noisy images",
         )
     )
+
+
+@hookimpl
+def inspector_register_commands(registry: CommandRegistry) -> None:
+    from inspector_drivers.sim.commands import COMMANDS
+
+    for spec in COMMANDS:
+        registry.add(spec)

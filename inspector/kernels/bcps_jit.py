@@ -27,7 +27,7 @@ import numpy as np
 from inspector.kernels.hull_jit import map_value
 from inspector.kernels.meshdist import signed_at
 
-numba.config.THREADING_LAYER = "omp"
+numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]  # set at run time
 
 __all__ = ["select_rays", "MAP_LIPSCHITZ"]
 

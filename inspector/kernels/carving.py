@@ -176,7 +176,7 @@ def _sdt_padded(m: np.ndarray, outside: int, out: np.ndarray | None = None) -> n
         out.fill(0.5 - _BIG_PX)
         return out
     # 0.5 - d_out, d_out the distance to the nearest object pixel (0 on the object)
-    d_out = cv2.distanceTransform(m8 ^ 1, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    d_out = cv2.distanceTransform(np.bitwise_xor(m8, np.uint8(1)), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
     np.subtract(np.float32(0.5), d_out[1:-1, 1:-1], out=out)
     # d_in - 0.5 on the object pixels, d_in from the object's bounding box grown by one
     # pixel (clipped to the frame): that ring is background, and the nearest background
@@ -185,6 +185,7 @@ def _sdt_padded(m: np.ndarray, outside: int, out: np.ndarray | None = None) -> n
     x0, y0 = max(x - 1, 0), max(y - 1, 0)
     x1, y1 = min(x + w + 1, m8.shape[1]), min(y + h + 1, m8.shape[0])
     sub = m8[y0:y1, x0:x1]
+    d_in: np.ndarray
     if cv2.countNonZero(sub) == sub.size:  # no background pixel at all
         d_in = np.full(sub.shape, _BIG_PX, np.float32)
     else:
@@ -232,7 +233,8 @@ def _object_box(mask: np.ndarray) -> tuple[int, int, int, int]:
     """Bounding box ``(x, y, w, h)`` px of the True pixels of ``mask`` (H, W) bool (w = 0: none)."""
     import cv2
 
-    return tuple(int(k) for k in cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8)))
+    x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
+    return int(x), int(y), int(w), int(h)
 
 
 def _window(
@@ -820,16 +822,16 @@ def _default_bounds(
     mid = centres.mean(axis=0)
     rad = float(np.max(np.linalg.norm(centres - mid, axis=1))) + 1.0
     var_bounds = [(float(mid[i] - 4 * rad), float(mid[i] + 4 * rad)) for i in range(3)]
-    box = np.array([mid - 4 * rad, mid + 4 * rad])
+    bounds = np.array([mid - 4 * rad, mid + 4 * rad])
     if A:
         A_ub = np.concatenate(A)
         b_ub = np.concatenate(b)
         scale = np.linalg.norm(A_ub, axis=1)
         A_ub = A_ub / scale[:, None]
         b_ub = b_ub / scale
-        ext = _polytope_box(A_ub, b_ub, box)
+        ext = _polytope_box(A_ub, b_ub, bounds)
         if ext is not None:
-            box = ext
+            bounds = ext
         else:
             for i in range(3):
                 for k, sgn in enumerate((1.0, -1.0)):
@@ -840,12 +842,12 @@ def _default_bounds(
                         raise ValueError("the silhouette cones have no common point (check the calibration)")
                     if res.status != 0:
                         continue  # keep the rig cap on that side
-                    box[k, i] = res.x[i]
+                    bounds[k, i] = res.x[i]
     if margin_mm is None:
-        margin_mm = 0.02 * float(np.max(box[1] - box[0]))
-    box[0] -= margin_mm
-    box[1] += margin_mm
-    return box
+        margin_mm = 0.02 * float(np.max(bounds[1] - bounds[0]))
+    bounds[0] -= margin_mm
+    bounds[1] += margin_mm
+    return bounds
 
 
 # --------------------------------------------------------------------------------------
@@ -979,7 +981,7 @@ def _refine_points(
     at_point = ~chord_ok & ~at_parent
     grad = np.empty_like(X)
     grad[:, chord_ok] = grad_all[:, ok[chord_ok]]
-    if at_parent.any():
+    if Pc is not None and at_parent.any():
         grad[:, at_parent] = _grad_argmin(views, Pc[:, ok[at_parent]], a[at_parent], h)
     grad[:, at_point] = _grad_argmin(views, X[:, at_point], a[at_point], h)
     gn = np.sqrt(np.einsum("ij,ij->j", grad, grad))

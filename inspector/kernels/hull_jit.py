@@ -124,7 +124,7 @@ def stack_views(views: Sequence) -> CameraStack:
 # OpenMP (libgomp, a system prerequisite): the TBB found in some environments is too old
 # and numba would warn about it on every run. This module is imported lazily (by the
 # bcps stage), so ``import inspector`` stays free of Numba.
-numba.config.THREADING_LAYER = "omp"
+numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]  # set at run time
 
 
 @numba.njit(cache=True, inline="always")

@@ -44,7 +44,7 @@ BANDS_MM = (8.0, 4.0, 2.5, 1.5, 1.0)
 
 # OpenMP (libgomp): see inspector.kernels.hull_jit. This module is imported lazily
 # (Reference.distance), so ``import inspector`` stays free of Numba.
-numba.config.THREADING_LAYER = "omp"
+numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]  # set at run time
 
 @numba.njit(cache=True, inline="always")
 def closest(px, py, pz, tri, t):
@@ -351,13 +351,14 @@ class MeshDistance:
         ext = float(np.max(vhi - vlo))
         h = float(cell_mm) if cell_mm else min(max(ext / 60.0, 0.25), 1.0)
         r2 = math.sqrt(3.0) * h  # 2 r
+        band = BANDS_MM[-1] if band_mm is None else band_mm
         if band_mm is None:
             size = tb[:, 3:] - tb[:, :3]
-            for band_mm in BANDS_MM:
-                pairs = float(np.sum(np.prod(size + 2.0 * (band_mm + r2) + h, axis=1))) / h**3
+            for band in BANDS_MM:
+                pairs = float(np.sum(np.prod(size + 2.0 * (band + r2) + h, axis=1))) / h**3
                 if pairs <= PAIR_BUDGET:
                     break
-        self.band_mm = float(band_mm)
+        self.band_mm = float(band)
         self.cell_mm = h
         lo = vlo - self.band_mm - h
         dims = np.ceil((vhi + self.band_mm + h - lo) / h).astype(np.int64)
@@ -393,7 +394,7 @@ class MeshDistance:
         P = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         out = np.empty(len(P))
         if len(P):
-            query(P, *self.args(), out)
+            query(P, *self.args(), out)  # type: ignore[call-arg]  # a Numba dispatcher
             miss = np.isnan(out)
             if self.fallback is not None and miss.any():
                 out[miss] = self.fallback(P[miss])
@@ -405,7 +406,7 @@ class MeshDistance:
         q = np.full((len(P), 3), np.nan)
         tid = np.full(len(P), -1, dtype=np.int64)
         if len(P):
-            closest_query(P, *self.args(), q, tid)
+            closest_query(P, *self.args(), q, tid)  # type: ignore[call-arg]  # a Numba dispatcher
             miss = tid < 0
             if self.fallback_closest is not None and miss.any():
                 q[miss], tid[miss] = self.fallback_closest(P[miss])

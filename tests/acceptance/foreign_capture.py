@@ -2,9 +2,9 @@
 
 This module is deliberately independent of the product: it imports nothing from
 ``inspector``, ``inspector_plugins`` or ``inspector_drivers``. It builds its own parts
-(trimesh + manifold3d), its own 16-camera rig (golden-spiral sphere, random roll), its own
-exact anti-aliased silhouette renderer (shapely polygon union + exact pixel-box areas) and
-writes capture folders in the CONTRACT format of ``docs/architecture.md``:
+(trimesh + manifold3d), its own rig (golden-spiral sphere, random roll; 16 cameras, or
+8, 12, ...), its own exact anti-aliased silhouette renderer (shapely polygon union + exact
+pixel-box areas) and writes capture folders in the CONTRACT format of ``docs/architecture.md``:
 
     <root>/captures/<name>/rig.json, images/camNN.png, capture.json
     <root>/truth/<name>/reference.stl   nominal part, part frame (bounding-box centred), mm
@@ -17,11 +17,15 @@ Conventions (CONTRACT): mm, ``x_cam = R @ x_world + t``, pixel ``(u, v)`` with `
 the centre of the top-left pixel, ``u`` right, ``v`` down. Pixel ``(j, i)`` therefore covers
 the box ``[j - 0.5, j + 0.5] x [i - 0.5, i + 0.5]`` in image coordinates.
 
+Each part also declares its rotational symmetry group (:data:`SYMMETRY`, rotations in the
+part frame), verified on the mesh by ``selfcheck`` (:func:`check_symmetry`): pose errors are
+measured up to it (``pose_sweep.py``).
+
 CLI::
 
-    python tests/acceptance/foreign_capture.py selfcheck
+    python tests/acceptance/foreign_capture.py selfcheck [--parts flange hub] [--quick]
     python tests/acceptance/foreign_capture.py write ROOT --part hexnut --condition grey \
-        --defect scale --seed 3
+        --defect scale --seed 3 [--scale 0.97] [--cameras 8]
 """
 
 from __future__ import annotations
@@ -46,13 +50,16 @@ __all__ = [
     "CONDITIONS",
     "DEFECTS",
     "PARTS",
+    "SYMMETRY",
     "Camera",
+    "check_symmetry",
     "coverage",
     "fibonacci_rig",
     "make_capture",
     "make_part",
     "self_check",
     "silhouette",
+    "symmetry_group",
     "to_image",
 ]
 
@@ -136,11 +143,124 @@ def _housing() -> trimesh.Trimesh:
     return _difference([box, pocket, *holes])
 
 
+# Near-symmetric parts (issue 14): the rotation about the axis is fixed only by small
+# features (a hole circle, a notch, a keyway, a flat, a missing tooth). Each is built so
+# that its declared symmetry group (SYMMETRY below) is exact on the *mesh*, not only on
+# the ideal solid: every polygonal circle has a vertex count that the group permutes
+# (a multiple of 4 and of twice the hole count, a vertex on the x axis), and repeated
+# features are rotated copies of one feature, never re-tessellated translates. Axis: z.
+
+
+def _rotz(mesh: trimesh.Trimesh, angle: float) -> trimesh.Trimesh:
+    """``mesh`` turned by ``angle`` (rad) about the z axis (a copy)."""
+    m = mesh.copy()
+    m.apply_transform(trimesh.transformations.rotation_matrix(angle, (0.0, 0.0, 1.0)))
+    return m
+
+
+def _sections(n: int, at_least: int = 120) -> int:
+    """Vertex count of a round outline that the dihedral group D_n (and the quarter turns that
+    keep the bounding box centred) maps onto itself: a multiple of lcm(2n, 4), >= ``at_least``."""
+    m = math.lcm(2 * n, 4)
+    return m * math.ceil(at_least / m)
+
+
+def _ncyl(radius: float, z0: float, z1: float, sections: int, centre: tuple[float, float] = (0.0, 0.0)) -> trimesh.Trimesh:
+    """Cylinder along z from ``z0`` to ``z1`` (mm) with ``sections`` vertices, one at angle 0."""
+    m = trimesh.creation.cylinder(radius=radius, segment=np.array([[0, 0, z0], [0, 0, z1]], float), sections=sections)
+    m.apply_translation((centre[0], centre[1], 0.0))
+    return m
+
+
+def _hole_circle(n: int, r_circle: float, r_hole: float, z0: float, z1: float, phase: float = 0.0) -> list[trimesh.Trimesh]:
+    """``n`` holes of radius ``r_hole`` on a circle of radius ``r_circle``, the first at angle
+    ``phase``: rotated copies of one hole (32 sections, a vertex on its radial line)."""
+    one = _ncyl(r_hole, z0, z1, 32, (r_circle, 0.0))
+    return [_rotz(one, phase + 2.0 * math.pi * k / n) for k in range(n)]
+
+
+def _disc_holes(n: int) -> trimesh.Trimesh:
+    """Disc Ø46 x 8 mm with ``n`` Ø6 through holes on a Ø30 circle, the first on +x (no bore)."""
+    disc = _ncyl(23.0, -4.0, 4.0, _sections(n))
+    return _difference([disc, *_hole_circle(n, 15.0, 3.0, -5.0, 5.0)])
+
+
+def _flange() -> trimesh.Trimesh:
+    """Flange: disc Ø50 x 8 with a Ø26 x 10 boss on +z, Ø14 bore, four Ø5 bolt holes on a Ø38 circle (on ±x, ±y).
+
+    50 x 50 x 18 mm.
+    """
+    disc = _ncyl(25.0, 0.0, 8.0, 128)
+    boss = _ncyl(13.0, 7.99, 18.0, 128)
+    bore = _ncyl(7.0, -1.0, 19.0, 64)
+    return _difference([_union([disc, boss]), bore, *_hole_circle(4, 19.0, 2.5, -1.0, 9.0)])
+
+
+def _hub() -> trimesh.Trimesh:
+    """Hub: disc Ø50 x 10, Ø16 bore, six Ø6 holes on a Ø32 circle (first on +x), a 6 mm wide,
+    4.5 mm deep notch in the rim on +x. ~49.9 x 50 x 10 mm."""
+    disc = _ncyl(25.0, -5.0, 5.0, _sections(6))
+    bore = _ncyl(8.0, -6.0, 6.0, 64)
+    notch = _box((6.0, 6.0, 12.0), (25.0 - 4.5 + 3.0, 0.0, 0.0))
+    return _difference([disc, bore, notch, *_hole_circle(6, 16.0, 3.0, -6.0, 6.0)])
+
+
+def _keyshaft() -> trimesh.Trimesh:
+    """Keyed shaft along z: Ø20 x 24 stepping to Ø14 x 16 (40 mm long); on the Ø20 step a
+    6 mm wide, 3.5 mm deep keyway with round ends, 14 mm long, on +x."""
+    body = _union([_ncyl(10.0, -20.0, 4.0, 128), _ncyl(7.0, 3.99, 20.0, 128)])
+    # End-milled slot: the cutter's axis is radial (x); round ends of radius 3.
+    slot = _box((4.5, 6.0, 8.0), (6.5 + 2.25, 0.0, -10.0))
+    ends = [_cyl(3.0, (6.5, 0.0, z), (11.0, 0.0, z)) for z in (-14.0, -6.0)]
+    return _difference([body, _union([slot, *ends])])
+
+
+def _flatshaft() -> trimesh.Trimesh:
+    """Shaft Ø20 x 40 along z with a flat 2.5 mm deep (7.5 mm from the axis) and 16 mm long,
+    centred on its length, on +x."""
+    body = _ncyl(10.0, -20.0, 20.0, 128)
+    flat = _box((4.0, 24.0, 16.0), (7.5 + 2.0, 0.0, 0.0))
+    return _difference([body, flat])
+
+
+def _gear(teeth: int = 20, module: float = 2.0, pressure_deg: float = 20.0) -> trimesh.Trimesh:
+    """Spur gear, ``teeth`` involute teeth of module ``module`` (Ø44 tip, Ø35 root for 20 x 2),
+    10 mm thick, Ø12 bore, the tooth on +x missing."""
+    rp = module * teeth / 2.0
+    ra, rf = rp + module, rp - 1.25 * module
+    rb = rp * math.cos(math.radians(pressure_deg))
+
+    def inv(a: float) -> float:
+        return math.tan(a) - a
+
+    half_p = math.pi / (2.0 * teeth) + inv(math.radians(pressure_deg))  # half tooth angle at the base circle
+    flank = []
+    for r in np.linspace(max(rb, rf), ra, 12):
+        a = math.acos(min(rb / r, 1.0))
+        flank.append((r, half_p - inv(a)))
+    tip = flank[-1][1]
+    pts2 = [(rf - 1.0, half_p), *flank, *[(ra, th) for th in np.linspace(tip, 0.0, 4)[1:]]]
+    pts2 += [(r, -th) for r, th in pts2]  # mirror about the tooth's centre line (x)
+    xy = np.array([(r * math.cos(th), r * math.sin(th)) for r, th in pts2])
+    prism = np.concatenate([np.c_[xy, np.full(len(xy), -5.0)], np.c_[xy, np.full(len(xy), 5.0)]])
+    tooth = trimesh.convex.convex_hull(prism)
+    root = _ncyl(rf, -5.0, 5.0, _sections(teeth, 120))
+    body = _union([root, *[_rotz(tooth, 2.0 * math.pi * k / teeth) for k in range(1, teeth)]])
+    return _difference([body, _ncyl(6.0, -6.0, 6.0, 64)])
+
+
 PARTS: dict[str, Any] = {
     "torus": _torus,
     "hexnut": _hexnut,
     "shaft": _shaft,
     "housing": _housing,
+    # Near-symmetric parts (issue 14), appended so the matrix's per-part seed offsets stay.
+    **{f"disc{n}": (lambda n=n: _disc_holes(n)) for n in range(2, 9)},
+    "flange": _flange,
+    "hub": _hub,
+    "keyshaft": _keyshaft,
+    "flatshaft": _flatshaft,
+    "gear": _gear,
 }
 
 
@@ -167,6 +287,155 @@ def make_part(name: str) -> trimesh.Trimesh:
 def _check_solid(mesh: trimesh.Trimesh, what: str) -> None:
     if not (len(mesh.faces) and mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0):
         raise RuntimeError(f"{what}: not a closed solid (faces={len(mesh.faces)}, watertight={mesh.is_watertight})")
+
+
+# --------------------------------------------------------------------------- symmetry groups
+
+
+def _rot(axis: tuple[float, float, float], angle: float) -> np.ndarray:
+    return Rotation.from_rotvec(np.asarray(axis, float) / np.linalg.norm(axis) * angle).as_matrix()
+
+
+def cyclic(n: int) -> list[np.ndarray]:
+    """C_n about z: the turns by 2 pi k / n, k = 0 .. n-1 (the first is the identity)."""
+    return [np.eye(3)] + [_rot((0, 0, 1), 2.0 * math.pi * k / n) for k in range(1, n)]
+
+
+def flip(angle: float) -> np.ndarray:
+    """Half turn about the in-plane (xy) axis at ``angle`` (rad) from +x."""
+    return _rot((math.cos(angle), math.sin(angle), 0.0), math.pi)
+
+
+def dihedral(n: int) -> list[np.ndarray]:
+    """D_n: C_n about z and the n half turns about the in-plane axes at pi k / n from +x."""
+    return cyclic(n) + [flip(math.pi * k / n) for k in range(n)]
+
+
+#: Each part's rotational symmetry group, in its part frame: the rotations ``S`` (3, 3) with
+#: ``S @ part == part`` (all about the bounding-box centre, the origin). A pose ``R`` and
+#: ``R @ S`` place the part identically. None: no finite group declared (the torus turns
+#: freely about its axis; the nut's D6 holds only to the 128-gon's 5 µm sagitta).
+SYMMETRY: dict[str, Any] = {
+    "torus": None,
+    "hexnut": None,
+    "shaft": lambda: [np.eye(3)],  # a step, a cross hole and a flat on one side
+    "housing": lambda: cyclic(2),  # pocket on +z, holes at ±x: the half turn about z
+    # Discs with n holes and nothing else: D_n (through a hole / between holes).
+    **{f"disc{n}": (lambda n=n: dihedral(n)) for n in range(2, 9)},
+    "flange": lambda: cyclic(4),  # the boss on one side removes the flips
+    "hub": lambda: [np.eye(3), flip(0.0)],  # the notch (+x) leaves the flip through it
+    "keyshaft": lambda: [np.eye(3)],  # the step removes the flip through the keyway
+    "flatshaft": lambda: [np.eye(3), flip(0.0)],  # the flat (+x), centred on the length
+    "gear": lambda: [np.eye(3), flip(0.0)],  # the missing tooth (+x): the flip through it
+}
+
+
+def symmetry_group(name: str) -> list[np.ndarray] | None:
+    """The declared rotational symmetry group of part ``name`` (list of (3, 3)), or None."""
+    f = SYMMETRY[name]
+    return None if f is None else [np.asarray(S, float) for S in f()]
+
+
+def _surface_samples(mesh: trimesh.Trimesh, n: int, rng: np.random.Generator) -> np.ndarray:
+    area = mesh.area_faces / mesh.area_faces.sum()
+    f = rng.choice(len(mesh.faces), size=n, p=area)
+    a, b = rng.random((2, n))
+    fl = a + b > 1.0
+    a[fl], b[fl] = 1.0 - a[fl], 1.0 - b[fl]
+    t = mesh.triangles[f]
+    return t[:, 0] + a[:, None] * (t[:, 1] - t[:, 0]) + b[:, None] * (t[:, 2] - t[:, 0])
+
+
+def _candidate_rotations() -> list[np.ndarray]:
+    """Rotations a part about z might also have: turns by 2 pi k / n (n <= 24) and half turns
+    about in-plane axes every 3.75 degrees; used to show a declared group is complete."""
+    out = [_rot((0, 0, 1), 2.0 * math.pi * k / n) for n in range(2, 25) for k in range(1, n) if math.gcd(k, n) == 1]
+    out += [flip(math.pi * j / 48) for j in range(48)]
+    out += [_rot(ax, s * math.pi / 2) for ax in ((1, 0, 0), (0, 1, 0)) for s in (1, -1)]
+    return out
+
+
+def _farthest(P: np.ndarray, tol: float, index: Any) -> tuple[bool, float]:
+    """Whether some point of ``P`` is at least ``tol`` from the mesh of ``index``, exactly, and a
+    distance: the largest exact one found (a lower bound of the maximum) when so, else the
+    maximum (exact above 1e-7 mm). Open3D's upper bounds are refined exactly, largest first,
+    a few at a time (``index``: measure.TriangleIndex of the mesh)."""
+    ub = index.distances(P)
+    order = np.argsort(ub)[::-1]
+    order = order[ub[order] >= min(tol, 1e-7)]
+    for lo, hi in ((0, 16), (16, 256), (256, len(order))):
+        idx = order[lo:hi]
+        if idx.size == 0:
+            break
+        ex = index.refine(P[idx], ub[idx])
+        if ex.max() >= tol:
+            return True, float(ex.max())
+        ub[idx] = ex
+    return False, float(ub.max())
+
+
+def check_symmetry(name: str, *, n: int = 20000, tol_mm: float = 1e-3, complete: bool = True,
+                   verbose: bool = False) -> dict[str, Any]:
+    """Verify part ``name``'s declared symmetry group on its mesh.
+
+    Checks: every element is a proper rotation; the set is a group (closed under products);
+    each element maps the surface onto itself (``n`` seeded surface samples and all vertices,
+    moved by ``S``, lie within ``tol_mm`` of the surface: since the group holds each inverse,
+    this bounds the symmetric Hausdorff distance on those samples); and the group is
+    complete among :func:`_candidate_rotations` (none outside it maps the surface onto itself;
+    skipped when ``complete`` is False).
+
+    Returns
+    -------
+    dict
+        ``order``; ``worst_mm`` (the largest distance over the group, exact above 1e-7 mm);
+        ``nearest_other_mm`` (a lower bound of the smallest sampled Hausdorff distance of a
+        candidate outside the group: how near the part comes to a larger symmetry) and
+        ``nearest_other`` (that candidate as a rotation vector, degrees).
+
+    Raises
+    ------
+    AssertionError
+        Any check fails.
+    """
+    G = symmetry_group(name)
+    if G is None:
+        return {"part": name, "order": None}
+    mesh = make_part(name)
+    rng = np.random.default_rng(12345)
+    P = np.concatenate([_surface_samples(mesh, n, rng), mesh.vertices])
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    from measure import TriangleIndex  # sibling, product-independent
+
+    index = TriangleIndex(V, F)
+    for S in G:
+        assert np.allclose(S @ S.T, np.eye(3), atol=1e-12) and abs(np.linalg.det(S) - 1.0) < 1e-12, (name, S)
+    for A in G:
+        for B in G:
+            assert min(np.abs(A @ B - C).max() for C in G) < 1e-9, f"{name}: the declared symmetries are not a group"
+    worst = 0.0
+    for S in G:
+        off, d = _farthest(P @ S.T, tol_mm, index)
+        rv = Rotation.from_matrix(S).as_rotvec(degrees=True).round(3)
+        assert not off, f"{name}: declared symmetry {rv} (rotation vector, deg) moves the surface by {d:.2e} mm"
+        worst = max(worst, d)
+    quick = P[rng.choice(len(P), 1000, replace=False)]
+    nearest, near_rot = math.inf, None
+    for S in _candidate_rotations() if complete else []:
+        if min(np.abs(S - C).max() for C in G) < 1e-9:
+            continue
+        off, d = _farthest(quick @ S.T, tol_mm, index)
+        if not off:  # the subset cannot reject it: decide on every sample
+            off, d = _farthest(P @ S.T, tol_mm, index)
+            assert off, f"{name}: undeclared symmetry {Rotation.from_matrix(S).as_rotvec(degrees=True).round(3)}"
+        if d < nearest:
+            nearest, near_rot = d, Rotation.from_matrix(S).as_rotvec(degrees=True).round(2).tolist()
+    out = {"part": name, "order": len(G), "worst_mm": worst, "nearest_other_mm": nearest, "nearest_other": near_rot}
+    if verbose:
+        print(f"symmetry {name:9s} order {len(G):2d}: worst {worst:.1e} mm" + (
+            f"; complete (nearest candidate outside it: rotation vector {near_rot} deg, >= {nearest:.2f} mm off)"
+            if complete else ""))
+    return out
 
 
 # --------------------------------------------------------------------------- pose and defects
@@ -446,6 +715,8 @@ def make_capture(
     polarity: str = "dark-object",
     name: str | None = None,
     rig_seed: int = 7,
+    cameras: int = 16,
+    scale: float = 0.98,
 ) -> dict[str, Any]:
     """Write one capture folder and its truth (outside the capture folder).
 
@@ -460,7 +731,13 @@ def make_capture(
     defect : str
         One of :data:`DEFECTS`.
     seed : int
-        Seeds the pose, the defect and the image noise.
+        Seeds the pose, the defect and the image noise. The pose does not depend on
+        ``defect`` for the scale defects (nor on ``cameras`` or ``condition``): the same seed
+        puts a nominal and a scaled part in the same pose.
+    cameras : int
+        Cameras of the golden-spiral rig (16, the paper's; 8 and 12 for the smaller rigs).
+    scale : float
+        The ``scale`` defect's factor (``scale_up``: ``2 - scale``).
 
     Returns
     -------
@@ -471,7 +748,7 @@ def make_capture(
     """
     if condition not in CONDITIONS:
         raise ValueError(f"unknown condition {condition!r} (known: {', '.join(CONDITIONS)})")
-    name = name or f"{part}-{condition}-{defect}-s{seed}"
+    name = name or f"{part}-{condition}-{defect}-s{seed}" + ("" if cameras == 16 else f"-c{cameras}")
     root = Path(root)
     cap, tdir = root / "captures" / name, root / "truth" / name
     (cap / "images").mkdir(parents=True, exist_ok=True)
@@ -479,11 +756,11 @@ def make_capture(
     rng = np.random.default_rng(seed)
 
     nominal = make_part(part)
-    true_part, defect_info = apply_defect(nominal, defect, rng)
+    true_part, defect_info = apply_defect(nominal, defect, rng, scale=scale)
     pose = random_pose(rng)
     world = true_part.copy()
     world.apply_transform(pose)
-    cams = fibonacci_rig(seed=rig_seed)
+    cams = fibonacci_rig(cameras, seed=rig_seed)
 
     posed_nominal = nominal.copy()
     posed_nominal.apply_transform(pose)
@@ -516,6 +793,7 @@ def make_capture(
         "part": part, "condition": condition, "defect": defect_info, "seed": seed, "polarity": polarity,
         "pose": pose.tolist(), "footprint_mm": footprint_mm(cams, pose[:3, 3]),
         "silhouette_change_px2": change,
+        "symmetry": None if SYMMETRY.get(part) is None else [S.tolist() for S in symmetry_group(part)],
         "rig": {"cameras": len(cams), "radius_mm": 400.0, "focal_px": 4000.0, "size_px": [1024, 1024], "seed": rig_seed},
     }
     (tdir / "truth.json").write_text(json.dumps(truth, indent=1))
@@ -563,21 +841,32 @@ def self_check(verbose: bool = False) -> float:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
-    sub.add_parser("selfcheck", help="check the renderer's exactness")
+    sc = sub.add_parser("selfcheck", help="check the renderer's exactness and every declared part symmetry")
+    sc.add_argument("--parts", nargs="+", choices=sorted(PARTS), default=list(PARTS), help="parts whose symmetry to check")
+    sc.add_argument("--no-symmetry", action="store_true", help="the renderer only")
+    sc.add_argument("--quick", action="store_true", help="the declared groups only, not their completeness")
     w = sub.add_parser("write", help="write one capture folder + truth")
     w.add_argument("root", type=Path)
     w.add_argument("--part", choices=sorted(PARTS), required=True)
     w.add_argument("--condition", choices=CONDITIONS, default="grey")
     w.add_argument("--defect", choices=DEFECTS, default="none")
+    w.add_argument("--scale", type=float, default=0.98, help="factor of the scale defect (scale_up: 2 - scale)")
+    w.add_argument("--cameras", type=int, default=16, help="cameras of the golden-spiral rig (e.g. 8, 12, 16)")
     w.add_argument("--polarity", choices=("dark-object", "bright-object"), default="dark-object")
     w.add_argument("--seed", type=int, default=0)
     w.add_argument("--name")
     args = ap.parse_args(argv)
     if args.cmd == "selfcheck":
         self_check(verbose=True)
+        if not args.no_symmetry:
+            for p in args.parts:
+                if SYMMETRY.get(p) is None:
+                    print(f"symmetry {p:9s} none declared")
+                else:
+                    check_symmetry(p, verbose=True, complete=not args.quick)
         return 0
     res = make_capture(args.root, args.part, args.condition, args.defect, seed=args.seed,
-                       polarity=args.polarity, name=args.name)
+                       polarity=args.polarity, name=args.name, cameras=args.cameras, scale=args.scale)
     print(json.dumps({k: str(v) for k, v in res.items()}, indent=1))
     return 0
 

@@ -31,7 +31,7 @@ HERE = Path(__file__).resolve().parent
 # --------------------------------------------------------------------------- fast: independence, renderer
 
 
-@pytest.mark.parametrize("module", ["foreign_capture.py", "measure.py", "run_matrix.py"])
+@pytest.mark.parametrize("module", ["foreign_capture.py", "measure.py", "run_matrix.py", "pose_sweep.py"])
 def test_the_foreign_program_does_not_import_the_product(module):
     tree = ast.parse((HERE / module).read_text())
     names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
@@ -95,11 +95,13 @@ def test_silhouette_of_a_plate_facing_the_camera_is_its_projected_square():
     assert sil.area == pytest.approx(side * side, rel=1e-9)
 
 
-def test_parts_are_closed_and_about_30_mm():
+def test_parts_are_closed_and_30_to_50_mm():
     for name in fc.PARTS:
         m = fc.make_part(name)
         assert m.is_watertight and m.volume > 0, name
-        assert 25.0 <= m.extents.max() <= 36.0, (name, m.extents)
+        # 30-36 mm for the matrix's four parts, up to 50 mm for the near-symmetric ones (issue 14):
+        # at the rig's ~0.1 mm pixel footprint every part stays well inside the 1024 px images.
+        assert 25.0 <= m.extents.max() <= 50.0, (name, m.extents)
         np.testing.assert_allclose(m.bounds.mean(axis=0), 0.0, atol=1e-9)
 
 
@@ -133,6 +135,81 @@ def test_the_exact_condition_is_the_noise_free_coverage_in_16_bit():
     bg, fg = fc.LEVELS_DARK
     assert img.dtype == np.uint16
     np.testing.assert_allclose((img / 257.0 - bg) / (fg - bg), cov, atol=1e-4)
+
+
+# --------------------------------------------------------------------------- dent rows: observable vs dent
+
+
+def _dent_truth(at=(10.0, 0.0, 0.0), radius=2.5):
+    pose = np.eye(4)
+    pose[:3, 3] = (1.0, 2.0, 3.0)
+    return {"defect": {"kind": "bump_removed", "at_mm": list(at), "radius_mm": radius}, "pose": pose.tolist()}
+
+
+def test_the_dent_footprint_is_the_removed_sphere_plus_a_margin_in_the_world():
+    truth = _dent_truth()
+    xyz = np.array([[11.0, 2.0, 3.0], [11.0 + 2.9, 2.0, 3.0], [11.0 + 3.1, 2.0, 3.0], [0.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(ms.dent_footprint(truth, xyz, 0.5), [True, True, False, False])
+    assert ms.dent_footprint({"defect": {"kind": "scale"}, "pose": truth["pose"]}, xyz) is None
+    st = ms.stats_px(np.array([0.0, 0.2, 0.4]), 0.1)
+    assert st["n"] == 3 and st["mean_px"] == pytest.approx(2.0) and st["max_px"] == pytest.approx(4.0)
+    assert ms.stats_px(np.zeros(0), 0.1) == {"n": 0, "mean_px": None, "p99_px": None, "max_px": None}
+
+
+def test_a_dent_row_is_judged_on_the_observable_surface():
+    case = rm.CASES[2]
+    row = {"n_points": 1000, "mean_px": 0.3, "p99_px": 9.0,
+           "observable": {"n": 950, "mean_px": 0.03, "p99_px": 0.2}}
+    ok, bar = rm.judge(case, row)
+    assert ok and bar.startswith("observable:")
+    assert not rm.judge(case, {**row, "observable": {"n": 950, "mean_px": 0.03, "p99_px": 0.6}})[0]
+    assert not rm.judge(case, {k: v for k, v in row.items() if k != "observable"})[0]  # no split: all points
+
+
+def test_best_case_gap_is_the_distance_to_the_visual_hull_in_the_images(tmp_path):
+    box = trimesh.creation.box(extents=(20.0, 20.0, 20.0))
+    np.savez(tmp_path / "true_world.npz", vertices=box.vertices, faces=box.faces)
+    cams = fc.fibonacci_rig(4)
+    (tmp_path / "rig.json").write_text(json.dumps({"units": "mm", "cameras": [c.to_json() for c in cams]}))
+    # A corner is on every silhouette's outline or inside; it lies on the hull (gap 0). The
+    # centre is deep inside every silhouette: ~10 mm from the nearest outline, ~100 px.
+    gap = rm.best_case_gap(tmp_path, tmp_path, np.array([[10.0, 10.0, 10.0], [0.0, 0.0, 0.0], [10.05, 10.0, 10.0]]))
+    assert gap[0] < 1e-6 and gap[1] > 50.0 and 0.05 < gap[2] < 2.0
+
+
+def _row(part, cond, mean, ok=True, dent=False):
+    r = {"part": part, "condition": cond, "seed": 1, "exit": 1, "expected": "fail", "defect_visible": True,
+         "verdict": "fail", "n_points": 100, "mean_px": mean, "p99_px": 0.2, "max_px": 1.0, "pose": {"mean_mm": 0.001},
+         "run_failed": False, "ok": ok, "bar": "mean <= 0.1, p99 <= 0.5"}
+    if dent:
+        r["observable"] = {"n": 90, "mean_px": 0.02, "p99_px": 0.1, "max_px": 0.3}
+        r["dent"] = {"n": 10, "mean_px": 5.0, "p99_px": 9.0, "max_px": 9.5, "best_case_n": 9, "depth_mm": 2.5,
+                     "shown_mm": 0.8}
+    return r
+
+
+def test_merging_re_run_rows_replaces_only_them_and_keeps_the_other_sections():
+    old = rm.to_markdown([_row("torus", "grey, scale 1.00", 0.02), _row("torus", "grey, bump removed", 0.3, ok=False)],
+                         100.0)
+    old += "\n## Excess material\n\nkept\n\n<!-- pose-sweep:begin -->\nsweep\n<!-- pose-sweep:end -->\n"
+    assert "1/2 rows meet their bar" in old
+    new = rm.merge_markdown(old, [_row("torus", "grey, bump removed", 0.3, dent=True)], 12.0)
+    cells = rm.parse_main_table(new)
+    assert [c["condition"] for c in cells] == ["grey, scale 1.00", "grey, bump removed"]
+    assert cells[0]["mean px"] == "0.020" and cells[0]["dent n / mean / p99 px"] == "-"
+    assert cells[1]["observable n / mean / p99 px"] == "90 / 0.020 / 0.100"
+    assert cells[1]["dent n / mean / p99 px"] == "10 / 5.000 / 9.000" and cells[1]["dent depth shown"] == "0.80 of 2.5 mm"
+    assert "2/2 rows meet their bar. Matrix wall time 100 s" in new and "(1 rows, 12 s" in new
+    assert new.endswith("## Excess material\n\nkept\n\n<!-- pose-sweep:begin -->\nsweep\n<!-- pose-sweep:end -->\n")
+    # A second merge replaces the note of the first instead of adding another.
+    again = rm.merge_markdown(new, [_row("torus", "grey, bump removed", 0.3, dent=True)], 13.0)
+    assert again.count("Re-run since") == 1 and "(1 rows, 13 s" in again
+
+
+def test_a_full_rewrite_keeps_the_blocks_of_other_generators():
+    old = "# old\n\n<!-- pose-sweep:begin -->\nsweep\n<!-- pose-sweep:end -->\n"
+    assert rm.keep_blocks(old, "# new\n") == "# new\n\n<!-- pose-sweep:begin -->\nsweep\n<!-- pose-sweep:end -->\n"
+    assert rm.keep_blocks(old, old) == old
 
 
 # --------------------------------------------------------------------------- slow: the real product

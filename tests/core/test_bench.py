@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 
 from inspector import bench
+from inspector.errors import RecipeError
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
-from inspector.errors import RecipeError
 
 
 def _args(*argv: str) -> argparse.Namespace:

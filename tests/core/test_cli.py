@@ -258,7 +258,6 @@ def test_foreign_capture_in_metres_with_a_file_reference(tmp_path):
     """A capture written by another program (plain json + cv2, rig in metres, 16-bit images):
     a Ø30 sphere in a random pose, reference given as an STL file."""
     import cv2
-    import trimesh
 
     from inspector.parts import make_part
     from inspector_drivers.sim.render import render_coverage, to_image

@@ -426,3 +426,102 @@ def test_axis_turns_only_for_a_reference_with_one_axis_of_near_symmetry():
     assert rotation_error_deg(turns[1], np.eye(4)) == pytest.approx(10.0, abs=1e-6)
     for m in (box, cube):
         assert len(_axis_turns(_Reference(np.asarray(m.vertices), np.asarray(m.faces)), (-10.0, 10.0))) == 1
+
+
+# --------------------------------------------------------------------------- turns about the axis
+
+
+def _disc(holes: int = 4, notch: bool = False) -> trimesh.Trimesh:
+    """Disc Ø40 x 6 (axis z) with ``holes`` Ø5 holes on a Ø28 circle, the first on +x, and
+    optionally a 4 x 3 mm notch in the rim on +y between two holes (it keys the turn)."""
+    disc = trimesh.creation.cylinder(radius=20.0, height=6.0, sections=128)
+    cut = []
+    for k in range(holes):
+        a = 2 * np.pi * k / holes
+        h = trimesh.creation.cylinder(radius=2.5, height=8.0, sections=64)
+        h.apply_translation((14.0 * np.cos(a), 14.0 * np.sin(a), 0.0))
+        cut.append(h)
+    if notch:
+        n = trimesh.creation.box((4.0, 6.0, 8.0))
+        n.apply_translation((0.0, 20.0, 0.0))
+        cut.append(n)
+    return trimesh.boolean.difference([disc, *cut], engine="manifold")
+
+
+def _turn_z(deg: float) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+    return T
+
+
+def test_scan_finds_a_flange_s_own_symmetries_and_its_geometric_axis():
+    from inspector.kernels.registration import scan_about_axis
+
+    disc = _disc(4)
+    pts, _ = trimesh.sample.sample_surface(disc, 6000, seed=1)
+    scan = scan_about_axis(pts, disc.vertices, disc.faces, np.eye(4), cutoff_mm=1.0)
+    np.testing.assert_allclose(np.abs(scan.axis), [0, 0, 1], atol=1e-6)
+    assert sorted(scan.angles_deg[scan.symmetric].round(6)) == [0.0, 90.0, 180.0, 270.0]
+    # the points fit at the pose and at the symmetries, not half way between
+    at = {float(a): c for a, c in zip(scan.angles_deg, scan.cost)}
+    assert at[0.0] < 0.01 and at[90.0] < 0.01 and at[45.0] > 0.02
+    assert scan_about_axis(pts, *_cube_mesh(), np.eye(4), cutoff_mm=1.0) is None
+
+
+def _cube_mesh():
+    m = trimesh.creation.box((30.0, 30.0, 30.0))
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def test_axis_scan_recovers_a_keyed_disc_turned_far_about_its_axis():
+    """A disc keyed by one rim notch, its points on the true surface, the pose turned 130
+    degrees: one fit (even with turns of +-15 degrees) stays off; the scan over every turn
+    finds the right one."""
+    disc = _disc(4, notch=True)
+    P, _ = trimesh.sample.sample_surface(disc, 20000, seed=2)
+    start = _turn_z(130.0)
+    local = refine_on_points(P, disc.vertices, disc.faces, start, robust_mm=0.1, start_mm=1.0,
+                             axis_turns_deg=(-15.0, -7.5, 7.5, 15.0))
+    scanned = refine_on_points(P, disc.vertices, disc.faces, start, robust_mm=0.1, start_mm=1.0, axis_scan=True)
+    assert rotation_error_deg(local.pose, np.eye(4)) > 1.0
+    assert rotation_error_deg(scanned.pose, np.eye(4)) < 0.05
+    assert scanned.fitness > 0.99
+
+
+def test_hull_points_veto_turns_that_put_the_reference_out_of_the_hull():
+    """Hull points on a disc with four holes: turns by 90 degrees keep the reference inside
+    the hull, 45 degrees puts it into the holes' space."""
+    from inspector.kernels.meshdist import MeshDistance
+    from inspector.kernels.registration import scan_about_axis
+
+    disc = _disc(4)
+    V, F = np.asarray(disc.vertices), np.asarray(disc.faces)
+    hull, _ = trimesh.sample.sample_surface(disc, 8000, seed=3)
+    scan = scan_about_axis(hull, V, F, np.eye(4), cutoff_mm=1.0, index=MeshDistance(V, F), hull_points=hull,
+                           hull_mm=0.5)
+    at = {float(a): ok for a, ok in zip(scan.angles_deg, scan.inside_hull)}
+    assert at[0.0] and at[90.0] and at[180.0]
+    assert not at[45.0]
+
+
+def test_pose_confidence_tells_a_keyed_part_from_an_unpinned_one():
+    """At the true pose of the keyed disc the runner-up turn (a quarter turn: the holes
+    match, the notch does not) fits clearly worse; the plain disc's quarter turns are its
+    own symmetries, not runner-ups; face points away from holes and notch pin nothing."""
+    from inspector.kernels.registration import pose_confidence, scan_about_axis
+
+    keyed = _disc(4, notch=True)
+    P, fi = trimesh.sample.sample_surface(keyed, 20000, seed=4)
+    conf = pose_confidence(scan_about_axis(P, keyed.vertices, keyed.faces, np.eye(4), cutoff_mm=1.0))
+    assert not conf.ambiguous and conf.margin_points > 100
+    assert abs(abs(conf.runner_up_deg) % 90.0) < 5.0 or abs(abs(conf.runner_up_deg) % 90.0) > 85.0
+    plain = _disc(4)
+    Q, _ = trimesh.sample.sample_surface(plain, 20000, seed=4)
+    sym = pose_confidence(scan_about_axis(Q, plain.vertices, plain.faces, np.eye(4), cutoff_mm=1.0))
+    assert sym.symmetry_deg == (90.0, 180.0, 270.0) and not sym.ambiguous and sym.margin_points > 100
+    assert 5.0 < abs(sym.runner_up_deg) % 90.0 < 85.0
+    # the keyed disc seen only by its faces (z = +-3, away from holes and notch): nothing pins the turn
+    r = np.hypot(P[:, 0], P[:, 1])
+    faces = (np.abs(np.abs(P[:, 2]) - 3.0) < 1e-6) & (r < 9.0)
+    blind = pose_confidence(scan_about_axis(P[faces], keyed.vertices, keyed.faces, np.eye(4), cutoff_mm=1.0))
+    assert blind.ambiguous

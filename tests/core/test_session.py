@@ -59,10 +59,10 @@ class Plugin:
             if self.block:
                 self.entered.set()
                 assert self.gate.wait(10)
-            return ctx
+            return ctx.evolve(silhouettes=())  # a segment stage sets silhouettes (the runner checks)
 
         registry.add(StageSpec(name="segment.first", run=first, doc="test stage"))
-        registry.add(StageSpec(name="carve.second", run=lambda ctx, p: ctx, doc="test stage"))
+        registry.add(StageSpec(name="classify.second", run=lambda ctx, p: ctx, doc="test stage"))
 
     @hookimpl
     def inspector_on_run_start(self, recipe, outdir, source):
@@ -90,7 +90,8 @@ params = { count = 3 }
 [[stages]]
 use = "segment.first"
 [[stages]]
-use = "carve.second"
+name = "carve"
+use = "classify.second"
 """
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from inspector.errors import CaptureError, RecipeError
-from inspector_drivers.replay.hotfolder import DONE_DIR, HotFolderDriver, HotFolderParams
+from inspector_drivers.replay.hotfolder import DONE_DIR, PROCESSING_DIR, HotFolderDriver, HotFolderParams
 
 DEFAULT = str(Path(__file__).resolve().parents[2] / "recipes" / "default.toml")
 
@@ -55,7 +55,7 @@ def test_a_complete_folder_is_read_once_quiet_and_then_filed_in_done(tmp_path, s
     acq = next(gen)
     assert acq.name == "part1" and clock.t >= 1000.5  # waited until it had been quiet 0.5 s
     assert acq.load().name == "part1" and len(acq.load().rig) == 8
-    assert (inbox / "part1").is_dir()  # not moved before its result is written
+    assert not (inbox / "part1").exists() and (inbox / PROCESSING_DIR / "part1").is_dir()  # claimed, not done
     with pytest.raises(StopIteration):
         next(gen)  # resumed: the result is written; count reached
     assert not (inbox / "part1").exists() and (inbox / DONE_DIR / "part1" / "rig.json").is_file()

@@ -80,7 +80,6 @@ def test_a_history_that_cannot_be_written_costs_only_its_row(tmp_path, two_parts
 
 def test_the_trend_picture_shows_each_part_in_its_verdict_colour(tmp_path, two_parts, capsys):
     import cv2
-    import numpy as np
 
     out = tmp_path / "out"
     _run(two_parts, out)

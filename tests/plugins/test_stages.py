@@ -229,7 +229,6 @@ def test_write_ply_equals_plyfile_for_every_type(tmp_path, dtypes, n):
 def test_align_from_a_random_orientation(small):
     from inspector_plugins.align import AlignParams, run_align
     from inspector_plugins.carve import CarveParams, run_carve
-    import json
 
     ctx = run_carve(_segment(small), CarveParams(voxel_mm=0.8))
     ctx = ctx.evolve(reference=Reference.load("builtin:cube30"))
@@ -322,6 +321,32 @@ def test_evaluate_a_defect_seen_by_one_camera_only_does_not_reject():
     two = evaluate(_eval_ctx(dev, pts, cameras=[3, 3, 3, 3, 3, 7]), EvaluateParams()).evaluation
     assert two.verdict == "fail" and two.defects[0].n_points == 6
     assert evaluate(_eval_ctx(dev, pts, cameras=np.full(6, 3)), EvaluateParams(min_cameras=1)).evaluation.verdict == "fail"
+
+
+def test_defects_on_an_ambiguous_turn_are_unconfirmed_not_reported():
+    """When another turn about the part's axis fits the points about as well, the defects
+    could be the part turned: verdict error with the reason, the clusters kept aside."""
+    import dataclasses
+
+    from inspector.model import PoseConfidence
+    from inspector_plugins.evaluate import EvaluateParams, evaluate
+
+    pts = np.array([[5.0 + 0.1 * i, 5.0, -15.0] for i in range(6)])
+    dev = np.full(6, -0.4)
+    ctx = _eval_ctx(dev, pts)
+    firm = PoseConfidence(axis=(0.0, 0.0, 1.0), runner_up_deg=90.0, margin=0.2, margin_points=900, cutoff_mm=1.0)
+    loose = dataclasses.replace(firm, margin=0.001, margin_points=4, ambiguous=True)
+    sure = evaluate(ctx.evolve(alignment=dataclasses.replace(ctx.alignment, confidence=firm)), EvaluateParams())
+    assert sure.evaluation.verdict == "fail" and len(sure.evaluation.defects) == 1
+    unsure = evaluate(ctx.evolve(alignment=dataclasses.replace(ctx.alignment, confidence=loose)), EvaluateParams())
+    ev = unsure.evaluation
+    assert ev.verdict == "error" and ev.defects == ()
+    assert "pose uncertain" in ev.error and "+90 deg" in ev.error and "4 points" in ev.error
+    assert ev.stats["unconfirmed_defects"][0]["n_points"] == 6
+    # a part with no defect passes whatever the turn
+    ok = evaluate(_eval_ctx(np.zeros(6), pts).evolve(alignment=Alignment(np.eye(4), 1.0, 0.0, confidence=loose)),
+                  EvaluateParams())
+    assert ok.evaluation.verdict == "pass" and ok.evaluation.error is None
 
 
 def test_an_inverted_polarity_is_named_instead_of_carving_the_background(small):
