@@ -10,10 +10,11 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from inspector.resources import recipe_path
 
 __all__ = ["add_parser", "run", "DEMO_RECIPE"]
 
-DEMO_RECIPE = Path(__file__).resolve().parents[2] / "recipes" / "cell-demo.toml"
+DEMO_RECIPE = recipe_path("cell-demo.toml")  # shipped as package data: works outside the source tree
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -50,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         from PySide6.QtWidgets import QApplication
 
-        from inspector.gui.window import MainWindow
+        from inspector.gui.window import MainWindow, freeze_startup_objects
     except ImportError as e:
         print(f"inspector: error: gui: {e.name or e} is not installed (make setup installs the GUI packages)", file=sys.stderr)
         return 2
@@ -62,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
                         idle_logout_s=args.idle_logout)
     window.resize(1600, 960)
     window.show()
+    freeze_startup_objects(window)
     if demo:  # a newcomer sees a part inspected at once
         window.inspect()
     return 0 if app.exec() == 0 else 3

@@ -2,23 +2,26 @@
 
 1. **Trigger to verdict shown** (target: at most :data:`OVERHEAD_TARGET_S` over the
    headless cycle, median): the time from calling :meth:`MainWindow.inspect` to the moment
-   the verdict is drawn (``result_shown`` was emitted, ``show_result`` returned and one
-   ``QApplication.processEvents()`` ran, so the paint happened), against the headless cycle
-   of the same inspection (``result.timings_s["total"]``, carried by the ResultView as
-   ``cycle_s``). A separate headless run of the same capture through
-   :class:`inspector.session.Session` (no Qt involved) is reported beside it. The figure is
+   the verdict is on screen (``verdict_shown``: the window emits it once the banner and
+   the defect table are painted; the 3D view, the cameras and the history follow, one per
+   event-loop turn), against the headless cycle of the same inspection
+   (``result.timings_s["total"]``, carried by the ResultView as ``cycle_s``). The time until
+   all is drawn (``result_shown``) is reported beside it, and a separate headless run of the
+   same capture through :class:`inspector.session.Session` (no Qt involved). The figure is
    wanted with :data:`DRAW_POINTS` points drawn: a capture that gives fewer (the simulated
    cube at 16 x 1024\u00b2 gives about 20k) is inspected as it is, and the drawing of
    :data:`DRAW_POINTS` points is measured apart by calling ``show_result`` with a copy of
    the last real result whose points are tiled (with a small jitter) up to that number; the
-   figure judged is then the measured overhead plus the extra drawing time (both are
-   reported, each named for what it is).
+   figure judged is then the measured overhead plus what the extra points add before the
+   verdict is on screen (the worker's per-point work and the verdict's drawing step; both
+   are reported, each named for what it is, and so is the extra time until all is drawn).
 2. **Event-loop stall** (target: at most :data:`STALL_TARGET_MS`): a 10 ms precise
    ``QTimer`` ticks in the GUI thread during every inspection; per inspection its worst gap
-   (trigger and end of the run included as bounds). Reported: the maximum and the p99 of
-   those worst gaps over the inspections after the warm-up, and the p99 of every gap; apart,
-   the gap around the drawing of the result (the timer cannot tick inside ``show_result``)
-   and the worst of the other gaps (the run itself: worker thread, stage signals).
+   (trigger and end of the run included as bounds, and :data:`SETTLE_S` after the end for
+   the last paints). Reported: the maximum and the p99 of those worst gaps over the
+   inspections after the warm-up, and the p99 of every gap; apart, the gaps while the result
+   is drawn (from its arrival to the end) and the worst of the other gaps (the run itself:
+   worker thread, stage signals), and the longest of each drawing step.
 3. **Memory** (target: at most :data:`MEMORY_TARGET_MB` of growth): the resident memory
    (``/proc``) after the first ``first_sample`` (20) inspections and after all
    ``--gui-inspections`` (200) in the same window, and the number of actors in the 3D
@@ -50,6 +53,7 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+from inspector.resources import recipe_path
 
 __all__ = ["run_gui_bench", "OVERHEAD_TARGET_S", "STALL_TARGET_MS", "MEMORY_TARGET_MB", "DRAW_POINTS", "FIRST_SAMPLE"]
 
@@ -67,10 +71,13 @@ FIRST_SAMPLE = 20
 TICK_MS = 10
 #: An inspection that shows nothing in this long is a failure of the benchmark, s.
 INSPECTION_TIMEOUT_S = 300.0
+#: After a run ended, the event loop runs this long more within the inspection's figures (the
+#: paints that follow the last drawing step), s.
+SETTLE_S = 0.15
 #: Window size (as ``inspector gui`` opens it).
 WINDOW_SIZE = (1600, 960)
 
-_DEMO_RECIPE = Path(__file__).resolve().parents[2] / "recipes" / "demo.toml"
+_DEMO_RECIPE = recipe_path("demo.toml")  # shipped as package data: works outside the source tree
 
 
 def _pct(values: list[float], q: float) -> float:
@@ -108,8 +115,11 @@ def _recipe_path(args: argparse.Namespace) -> str:
 
 def _tiled(view: Any, n: int, seed: int = 0) -> Any:
     """``view`` with its points tiled up to ``n`` (each copy jittered by 0.02 mm), their
-    deviations and cameras with them: the same part, drawn with ``n`` points."""
+    deviations and cameras with them, and what the worker computes from them
+    (:func:`~inspector.gui.viewmodel.point_arrays`): the same part, drawn with ``n`` points."""
     import numpy as np
+
+    from inspector.gui.viewmodel import point_arrays
 
     m = len(view.points)
     if m == 0 or m >= n:
@@ -120,12 +130,26 @@ def _tiled(view: Any, n: int, seed: int = 0) -> Any:
     pts = pts + rng.normal(0.0, 0.02, pts.shape).astype(np.float32)
     dev = np.tile(np.asarray(view.deviation, np.float32), reps)[:n]
     cam = np.tile(np.asarray(view.camera), reps)[:n]
-    return dataclasses.replace(view, points=np.ascontiguousarray(pts), deviation=dev, camera=cam)
+    pts, dev, cam, arrays = point_arrays(pts, dev, cam, view.tolerance)
+    return dataclasses.replace(view, points=pts, deviation=dev, camera=cam, prepared={**view.prepared, **arrays})
+
+
+def _worker_points_s(view: Any, runs: int) -> float:
+    """Median time of the per-point work the worker does before the verdict is sent
+    (:func:`~inspector.gui.viewmodel.point_arrays`) for ``view``'s points."""
+    from inspector.gui.viewmodel import point_arrays
+
+    times = []
+    for _ in range(max(3, runs)):
+        t = time.perf_counter()
+        point_arrays(view.points, view.deviation, view.camera, view.tolerance)
+        times.append(time.perf_counter() - t)
+    return _median(times)
 
 
 class _Harness:
-    """Drives one MainWindow: INSPECT, wait for the verdict on screen, wait for the run's end,
-    with a 10 ms timer recording its ticks."""
+    """Drives one MainWindow: INSPECT, wait for the verdict on screen, for the result drawn
+    everywhere and for the run's end, with a 10 ms timer recording its ticks."""
 
     def __init__(self, app: Any, window: Any) -> None:
         from PySide6.QtCore import QEventLoop, Qt, QTimer
@@ -134,6 +158,7 @@ class _Harness:
         self.loop = QEventLoop()
         self.ticks: list[float] = []
         self.shown_at: float | None = None
+        self.drawn_at: float | None = None
         self.view: Any = None
         self.finished_at: float | None = None
         self.summary: Any = None
@@ -145,7 +170,8 @@ class _Harness:
         self.guard.setSingleShot(True)
         self.guard.timeout.connect(self._give_up)
         self.timed_out = False
-        window.result_shown.connect(self._shown)
+        window.verdict_shown.connect(self._shown)
+        window.result_shown.connect(self._drawn)
         window.run_finished.connect(self._finished)
         self.timer.start()
 
@@ -153,9 +179,14 @@ class _Harness:
         self.ticks.append(time.perf_counter())
 
     def _shown(self, view: Any) -> None:
+        # Emitted once the banner and the defect table are painted (MainWindow.show_result).
         self.shown_at = time.perf_counter()
+        self.loop.quit()
+
+    def _drawn(self, view: Any) -> None:
+        self.drawn_at = time.perf_counter()
         self.view = view
-        self.loop.quit()  # exec() returns once show_result (the current event) has returned
+        self.loop.quit()
 
     def _finished(self, summary: Any) -> None:
         self.finished_at = time.perf_counter()
@@ -172,9 +203,18 @@ class _Harness:
             self.loop.exec()
         self.guard.stop()
 
+    def _settle(self) -> float:
+        """Run the event loop SETTLE_S more (the paints that follow the last drawing step
+        happen there, and count); the time it ended."""
+        from PySide6.QtCore import QTimer
+
+        QTimer.singleShot(int(SETTLE_S * 1000), self.loop.quit)
+        self.loop.exec()
+        return time.perf_counter()
+
     def inspect_once(self) -> dict[str, Any]:
         """One INSPECT; its record (times in seconds from the trigger, worst tick gap)."""
-        self.shown_at = self.view = self.finished_at = self.summary = None
+        self.shown_at = self.drawn_at = self.view = self.finished_at = self.summary = None
         self.timed_out = False
         self.app.processEvents()  # nothing of the last run left queued
         self.ticks = []
@@ -183,29 +223,31 @@ class _Harness:
         if not self.window.inspect():
             return {"error": "INSPECT did not start (no session, or a run in progress)"}
         self._wait(lambda: self.shown_at is not None or self.finished_at is not None)
-        self.app.processEvents()  # the verdict's paint
-        t_shown = time.perf_counter()
         rec: dict[str, Any] = {}
+        # run_finished comes once the last result is drawn everywhere.
+        self._wait(lambda: self.finished_at is not None)
         if self.view is None:
             rec["error"] = ("no result within %.0f s" % INSPECTION_TIMEOUT_S) if self.timed_out else \
                 "the run ended without a result (%s)" % (self.window.progress_label.text() or "no reason shown")
-        self._wait(lambda: self.finished_at is not None)
-        t_end = self.finished_at if self.finished_at is not None else time.perf_counter()
+        t_end = self._settle() if not self.timed_out else time.perf_counter()
         ticks = [t for t in self.ticks if t <= t_end] + [t_end]
-        gaps = [b - a for a, b in zip(ticks, ticks[1:])]
-        # The gap around result_shown is the drawing of the result (the timer cannot tick
-        # inside show_result); the others are the rest of the run (worker, signals, stages).
-        s_at = self.shown_at
-        drawing = [b - a for a, b in zip(ticks, ticks[1:]) if s_at is not None and a <= s_at <= b]
-        other = [b - a for a, b in zip(ticks, ticks[1:]) if s_at is None or not a <= s_at <= b]
+        gaps = [(a, b) for a, b in zip(ticks, ticks[1:])]
+        # The gaps from the result's arrival to the end of its drawing (the verdict's step
+        # included) are the drawing; the others are the rest of the run (worker, stages, signals).
+        lo = (self.shown_at - self.window.draw_times.get("verdict", 0.0)) if self.shown_at is not None else None
+        hi = t_end
+        drawing = [b - a for a, b in gaps if lo is not None and b >= lo and a <= hi]
+        other = [b - a for a, b in gaps if lo is None or b < lo]
+        steps = dict(self.window.draw_times)
         rec.update({
-            "trigger_to_shown_s": t_shown - t0,
-            "trigger_to_signal_s": (self.shown_at - t0) if self.shown_at is not None else None,
-            "trigger_to_end_s": t_end - t0,
-            "worst_gap_ms": 1000.0 * max(gaps) if gaps else None,
+            "trigger_to_shown_s": (self.shown_at - t0) if self.shown_at is not None else None,
+            "trigger_to_drawn_s": (self.drawn_at - t0) if self.drawn_at is not None else None,
+            "trigger_to_end_s": (self.finished_at or t_end) - t0,
+            "worst_gap_ms": 1000.0 * max(b - a for a, b in gaps) if gaps else None,
             "drawing_gap_ms": 1000.0 * max(drawing) if drawing else None,
             "worst_other_gap_ms": 1000.0 * max(other) if other else None,
-            "gaps_ms": array("d", (1000.0 * g for g in gaps)),
+            "steps_ms": {k: 1000.0 * v for k, v in steps.items()},
+            "gaps_ms": array("d", (1000.0 * (b - a) for a, b in gaps)),
         })
         if self.timed_out and "error" not in rec:
             rec["error"] = "the run did not end within %.0f s" % INSPECTION_TIMEOUT_S
@@ -215,17 +257,24 @@ class _Harness:
                         "error": rec.get("error") or (v.error if v.verdict in ("error", "aborted") else None)})
         return rec
 
-    def timed_show(self, view: Any) -> dict[str, float]:
-        """``show_result(view)`` (the GUI thread is blocked that long) and one processEvents, timed."""
+    def timed_show(self, view: Any) -> dict[str, Any]:
+        """``show_result(view)`` as after an inspection: the time until the verdict is on
+        screen (``show_result`` returns then), until all is drawn (and painted), the worst
+        tick gap meanwhile (the longest the GUI thread was blocked) and each step's time."""
         self.app.processEvents()
+        self.drawn_at = None
+        self.timed_out = False
         self.ticks = []
         t0 = time.perf_counter()
         self.ticks.append(t0)
         self.window.show_result(view)
         t1 = time.perf_counter()
-        self.app.processEvents()
-        t2 = time.perf_counter()
-        return {"show_result_s": t1 - t0, "shown_s": t2 - t0}
+        self._wait(lambda: self.drawn_at is not None)
+        t2 = self.drawn_at or time.perf_counter()
+        t_end = self._settle()
+        ticks = [t for t in self.ticks if t <= t_end] + [t_end]
+        return {"shown_s": t1 - t0, "drawn_s": t2 - t0, "worst_gap_s": max(b - a for a, b in zip(ticks, ticks[1:])),
+                "steps_s": dict(self.window.draw_times)}
 
     def idle_gaps(self, seconds: float) -> dict[str, float]:
         """Worst and p99 tick gap (ms) over ``seconds`` with nothing running (what is on
@@ -245,7 +294,8 @@ class _Harness:
         self.timer.stop()
         self.guard.stop()
         try:
-            self.window.result_shown.disconnect(self._shown)
+            self.window.verdict_shown.disconnect(self._shown)
+            self.window.result_shown.disconnect(self._drawn)
             self.window.run_finished.disconnect(self._finished)
         except (RuntimeError, TypeError):  # pragma: no cover - already gone
             pass
@@ -267,7 +317,7 @@ def _snapshot(app: Any, window: Any) -> dict[str, Any]:
         "actors": len(p.renderer.actors),
         "scalar_bars": len(p.scalar_bars),
         "qobjects_in_window": len(window.findChildren(QObject)),
-        "python_objects": len(gc.get_objects()),
+        "python_objects": len(gc.get_objects()) + gc.get_freeze_count(),
     }
 
 
@@ -326,62 +376,54 @@ def _headless(recipe: str, reference: str | None, folder: Path, out: Path, runs:
 
 def _draw_cost(harness: _Harness, view: Any, n_points: int, runs: int) -> dict[str, Any]:
     """``show_result`` of the last real view against the same view with ``n_points`` points,
-    alternately, ``runs`` times each; the render of the 3D view alone (the pyvistaqt
-    auto-update renders it 5 times a second); the widgets' parts of ``show_result``."""
+    alternately, ``runs`` times each (verdict on screen, all drawn, the longest block of the
+    GUI thread, each drawing step); the worker's per-point work for both; one render of the
+    3D view with the big cloud; the event loop idle with each on screen."""
     window = harness.window
     big = _tiled(view, n_points)
-    real_s, big_s, real_call, big_call = [], [], [], []
+    real, large = [], []
     for _ in range(runs):
-        r = harness.timed_show(view)
-        real_s.append(r["shown_s"])
-        real_call.append(r["show_result_s"])
-        b = harness.timed_show(big)
-        big_s.append(b["shown_s"])
-        big_call.append(b["show_result_s"])
-    # The 3D view's render with the big cloud on screen (the 5 Hz auto-render's cost).
-    p = window.view3d.plotter
+        real.append(harness.timed_show(view))
+        large.append(harness.timed_show(big))
+    worker_real, worker_big = _worker_points_s(view, runs), _worker_points_s(big, runs)
+    # One render of the 3D view with the big cloud on screen (what a camera move costs).
     render_big = []
     for _ in range(max(3, runs)):
+        harness.app.processEvents()
         t = time.perf_counter()
-        p.render()
+        window.view3d.render()
         render_big.append(time.perf_counter() - t)
-    # Where show_result's time goes (each widget called alone, with the real view).
-    parts: dict[str, list[float]] = {"banner": [], "view3d": [], "view3d_big": [], "defects": [], "cameras": [],
-                                     "history_refresh": [], "history_canvas_draw": []}
-    calls = {
-        "banner": lambda: window.banner.show_result(view),
-        "view3d": lambda: window.view3d.show_result(view),
-        "view3d_big": lambda: window.view3d.show_result(big),
-        "defects": lambda: window.defects.show_result(view),
-        "cameras": lambda: window.cameras.show_result(view),
-        "history_refresh": lambda: window.history.refresh(window.out),
-        "history_canvas_draw": lambda: window.history.canvas.draw(),
-    }
-    for _ in range(runs):
-        for name, call in calls.items():
-            harness.app.processEvents()
-            t = time.perf_counter()
-            call()
-            parts[name].append(time.perf_counter() - t)
+
+    def steps(records: list[dict[str, Any]]) -> dict[str, float]:
+        names = {k for r in records for k in r["steps_s"]}
+        return {k: _median([r["steps_s"][k] for r in records if k in r["steps_s"]]) for k in sorted(names)}
+
     # The event loop with nothing running, the big cloud on screen, then the real one.
-    window.show_result(big)
-    harness.app.processEvents()
+    harness.timed_show(big)
     idle_big = harness.idle_gaps(2.0)
-    window.show_result(view)
-    harness.app.processEvents()
+    harness.timed_show(view)
     idle_real = harness.idle_gaps(2.0)
+    shown = {"real": _median([r["shown_s"] for r in real]), "big": _median([r["shown_s"] for r in large])}
     return {
         "idle_ticks_big": idle_big,
         "idle_ticks_real": idle_real,
         "points_real": int(len(view.points)),
         "points_big": int(len(big.points)),
-        "shown_real_s": _summary(real_s),
-        "shown_big_s": _summary(big_s),
-        "show_result_call_real_s": _summary(real_call),
-        "show_result_call_big_s": _summary(big_call),
-        "extra_big_s": _median(big_s) - _median(real_s),
+        "shown_real_s": _summary([r["shown_s"] for r in real]),
+        "shown_big_s": _summary([r["shown_s"] for r in large]),
+        "drawn_real_s": _summary([r["drawn_s"] for r in real]),
+        "drawn_big_s": _summary([r["drawn_s"] for r in large]),
+        "worst_gap_real_s": _summary([r["worst_gap_s"] for r in real]),
+        "worst_gap_big_s": _summary([r["worst_gap_s"] for r in large]),
+        "worker_points_real_s": worker_real,
+        "worker_points_big_s": worker_big,
+        # What n_points instead of the real ones add before the verdict is on screen: the
+        # worker's per-point work (before it sends the verdict) and the verdict's step.
+        "extra_big_s": (shown["big"] - shown["real"]) + (worker_big - worker_real),
+        "extra_drawn_big_s": _median([r["drawn_s"] for r in large]) - _median([r["drawn_s"] for r in real]),
         "render_big_s": _summary(render_big),
-        "parts_s": {k: _median(v) for k, v in parts.items()},
+        "steps_real_s": steps(real),
+        "steps_big_s": steps(large),
     }
 
 
@@ -408,7 +450,7 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
     try:
         from PySide6.QtWidgets import QApplication
 
-        from inspector.gui.window import MainWindow
+        from inspector.gui.window import MainWindow, freeze_startup_objects
     except ImportError as e:
         print(f"inspector: error: bench --gui: {e.name or e} is not installed (make setup installs the GUI packages)",
               file=sys.stderr)
@@ -455,6 +497,7 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
             for _ in range(20):  # mapped and painted before the first trigger
                 app.processEvents()
                 time.sleep(0.01)
+            freeze_startup_objects(window)  # as `inspector gui` does once its window is up
             harness = _Harness(app, window)
             say(f"GUI: {total} inspections in one window (1 warm-up, {args.runs} timed, memory after "
                 f"{first_sample} and {total}) ...")
@@ -489,6 +532,7 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
                 app.processEvents()
             window.deleteLater()
             app.processEvents()
+            gc.unfreeze()  # the process as it was (a test suite's leak checks see every object again)
 
     doc = _document(args, machine, recipe, reference, folder, source, headless, records, samples, draw,
                     first_sample, draw_points, loop_s, rss_trace)
@@ -510,7 +554,9 @@ def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, re
     timed = records[1:1 + args.runs]
     after_warmup = records[1:]
     shown = [r["trigger_to_shown_s"] for r in timed]
+    drawn = [r["trigger_to_drawn_s"] for r in timed if r.get("trigger_to_drawn_s") is not None]
     overhead = [r["trigger_to_shown_s"] - r["cycle_s"] for r in timed]
+    overhead_drawn = [r["trigger_to_drawn_s"] - r["cycle_s"] for r in timed if r.get("trigger_to_drawn_s") is not None]
     overhead_all = [r["trigger_to_shown_s"] - r["cycle_s"] for r in after_warmup]
     points = timed[0]["points"] if timed else 0
     extra = draw["extra_big_s"] if points < draw_points else 0.0
@@ -546,7 +592,10 @@ def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, re
                                         if r["worst_other_gap_ms"] is not None], 99),
         "worst_inspection": max(after_warmup, key=lambda r: r["worst_gap_ms"])["index"] if after_warmup else None,
         "warmup_worst_gap_ms": records[0]["worst_gap_ms"] if records else None,
-        "draw_big_worst_gap_ms": 1000.0 * draw["show_result_call_big_s"]["max"],
+        "draw_big_worst_gap_ms": 1000.0 * draw["worst_gap_big_s"]["max"],
+        # Per drawing step (verdict, 3d scene, 3d render, cameras, history, done): its longest.
+        "steps_max_ms": {k: max(r["steps_ms"][k] for r in after_warmup if k in r.get("steps_ms", {}))
+                         for k in sorted({k for r in after_warmup for k in r.get("steps_ms", {})})},
     }
     targets = {
         "trigger_to_shown": {
@@ -567,6 +616,7 @@ def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, re
     }
     for r in records:
         r.pop("gaps_ms", None)
+        r.pop("steps_ms", None)
     return {
         "config": {"recipe": recipe, "reference": reference, "capture": {"name": folder.name, "source": source},
                    "runs": args.runs, "inspections": len(records), "first_sample": first_sample,
@@ -576,6 +626,8 @@ def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, re
         "trigger_to_shown": {
             "points": points,
             "shown_s": _summary(shown),
+            "drawn_s": _summary(drawn),
+            "drawn_overhead_s": _summary(overhead_drawn),
             "cycle_s": _summary([r["cycle_s"] for r in timed]),
             "overhead_s": _summary(overhead),
             "overhead_all_inspections_s": _summary(overhead_all),
@@ -616,27 +668,35 @@ def _print_report(doc: dict[str, Any]) -> None:
     print(f"     separate headless Session run: timings total {h['total_s']['median']:.3f} s, "
           f"Session.run wall {h['wall_s']['median']:.3f} s (outputs and history included); "
           f"shown - headless wall: {ts['shown_minus_headless_wall_s']:+.3f} s")
-    print(f"     drawing, measured apart: show_result + paint {d['shown_real_s']['median']:.3f} s with "
-          f"{d['points_real']} points, {d['shown_big_s']['median']:.3f} s with {d['points_big']} "
-          f"(+{d['extra_big_s']:.3f} s); one render of the 3D view with {d['points_big']}: "
-          f"{d['render_big_s']['median']:.3f} s")
-    parts = ", ".join(f"{k} {1000 * v:.0f}" for k, v in d["parts_s"].items())
-    print(f"     show_result parts (ms, real view unless 'big'): {parts}")
+    print(f"     trigger -> all drawn (3D view, cameras, history), median: {ts['drawn_s']['median']:.3f} s, "
+          f"{ts['drawn_overhead_s']['median']:.3f} s over the cycle")
+    print(f"     drawing, measured apart: verdict on screen {1000 * d['shown_real_s']['median']:.0f} ms / all drawn "
+          f"{d['drawn_real_s']['median']:.3f} s with {d['points_real']} points, {1000 * d['shown_big_s']['median']:.0f} ms / "
+          f"{d['drawn_big_s']['median']:.3f} s with {d['points_big']}; the worker's per-point work "
+          f"{1000 * d['worker_points_real_s']:.1f} / {1000 * d['worker_points_big_s']:.1f} ms; extra before the verdict "
+          f"{1000 * d['extra_big_s']:+.1f} ms, before all drawn {d['extra_drawn_big_s']:+.3f} s")
+    print(f"     one render of the 3D view with {d['points_big']} points: {d['render_big_s']['median']:.3f} s")
+    for label, key in (("real", "steps_real_s"), ("big", "steps_big_s")):
+        parts = ", ".join(f"{k} {1000 * v:.0f}" for k, v in d[key].items())
+        print(f"     drawing steps ({label}, ms, each its own event-loop turn): {parts}")
     print(f"     overhead with {cfg['draw_points']} points ({t['trigger_to_shown']['how']}): "
           f"{ts['overhead_with_draw_points_s']:.3f} s")
     print(f"  2. event-loop stall ({cfg['tick_ms']} ms timer) over {st['inspections']} inspections: worst gap max "
           f"{st['max_ms']:.0f} ms (inspection {st['worst_inspection']}), p99 of the per-inspection worst "
           f"{st['p99_of_worst_ms']:.0f} ms, median {st['median_of_worst_ms']:.0f} ms; p99 of all "
           f"{st['ticks']} gaps {st['p99_all_gaps_ms']:.0f} ms")
-    print(f"     the gap around the result's drawing (show_result + paint): max {st['max_drawing_ms']:.0f} ms; "
+    print(f"     gaps while the result is drawn (its arrival to the paints after the last step): max "
+          f"{st['max_drawing_ms']:.0f} ms; "
           f"every other gap of the runs (worker, stages, signals): max {st['max_outside_drawing_ms']:.0f} ms, "
           f"p99 of the per-inspection worst {st['p99_outside_drawing_ms']:.0f} ms")
     ib, ir = d["idle_ticks_big"], d["idle_ticks_real"]
     print(f"     idle (no inspection, {ib['seconds']:.0f} s): worst gap {ir['max_ms']:.0f} ms with {d['points_real']} points "
           f"on screen, {ib['max_ms']:.0f} ms with {d['points_big']} (median gap {ir['median_ms']:.0f} / "
           f"{ib['median_ms']:.0f} ms)")
-    print(f"     (warm-up's worst gap {st['warmup_worst_gap_ms']:.0f} ms, left out; show_result with "
-          f"{d['points_big']} points blocks the GUI thread {st['draw_big_worst_gap_ms']:.0f} ms at worst)")
+    print(f"     (warm-up's worst gap {st['warmup_worst_gap_ms']:.0f} ms, left out; drawing {d['points_big']} points "
+          f"blocks the GUI thread {st['draw_big_worst_gap_ms']:.0f} ms at worst)")
+    print("     longest of each drawing step over the inspections (ms): "
+          + ", ".join(f"{k} {v:.0f}" for k, v in st["steps_max_ms"].items()))
     f, la = mem["first"], mem["last"]
     if f and la:
         print(f"  3. memory: RSS {f['rss_mb']:.0f} MB after {f['after']} inspections, {la['rss_mb']:.0f} MB after "

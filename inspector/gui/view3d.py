@@ -2,9 +2,16 @@
 limits, the aligned reference translucent, defects marked and numbered, and the cameras
 that produced a selected defect.
 
-Every actor has a name and is replaced, never added again (pyvista keeps unnamed actors
-and their textures alive: a leak per inspection), and the plotter is closed explicitly.
-Called on the GUI thread only.
+The actors are made once and updated in place (their data objects' arrays replaced): pyvista
+keeps unnamed actors and their textures alive (a leak per inspection), and re-adding costs
+time on the GUI thread. The plotter is closed explicitly. Called on the GUI thread only.
+
+Software OpenGL (Mesa llvmpipe) draws every frame on the CPU: no multisampling (4x MSAA
+costs more than the points themselves there), flat square points (sphere impostors cost
+two to three times as much), translucency without order-independent transparency, one render
+per change, the widget's paint after a render only shows that frame instead of rendering it
+again (:class:`_Interactor`), and the OpenGL widget in a native window of its own, so that
+the rest of the window repaints without OpenGL.
 """
 
 from __future__ import annotations
@@ -14,29 +21,18 @@ from pathlib import Path
 import numpy as np
 import pyvista as pv
 from pyvistaqt import QtInteractor
+from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QWidget
 
-from inspector.gui.viewmodel import DefectRow, ResultView
+from inspector.gui.viewmodel import SCALED, SPAN, DefectRow, ResultView, normalised
 
-__all__ = ["DeviationView", "deviation_colormap", "normalised"]
+__all__ = ["DeviationView", "deviation_colormap", "normalised", "SPAN"]
 
-#: The colour scale spans this many tolerance widths on each side.
-SPAN = 3.0
 BAR = "deviation"
-
-
-def normalised(deviation: np.ndarray, tolerance: tuple[float, float]) -> np.ndarray:
-    """Deviation in units of its own tolerance limit: -1 and +1 are the limits (which may
-    be asymmetric), so the colour scale is fixed to them whatever the numbers.
-
-    Parameters
-    ----------
-    deviation : (N,) float, mm
-    tolerance : (lower, upper), mm, lower < 0 < upper
-    """
-    lo, hi = tolerance
-    d = np.asarray(deviation, float)
-    return np.where(d >= 0, d / max(hi, 1e-9), d / max(-lo, 1e-9)).clip(-SPAN, SPAN)
+#: Points are drawn as flat squares of this many pixels.
+POINT_PX = 4
+#: Names of the actors a defect selection adds (removed when a new result is shown).
+_SELECTION = ("selected", "camera-rays", "camera-labels-points", "camera-labels-labels")
 
 
 def deviation_colormap(n: int = 240):
@@ -51,10 +47,57 @@ def deviation_colormap(n: int = 240):
     return ListedColormap(np.vstack([blues, grey, reds]), name="inspector-deviation")
 
 
+class _Interactor(QtInteractor):
+    """pyvistaqt's ``QtInteractor`` that draws each frame once, in two event-loop turns.
+
+    Every ``render()`` ends with VTK's frame event, on which pyvistaqt schedules a paint of
+    the widget; that paint renders the whole scene again before showing it (pyvistaqt does
+    so in case the scene changed without a render). Here the paint that follows a render
+    only shows the frame just rendered: the scene is not rendered twice (with software
+    OpenGL a render of 20k points costs 15-20 ms, of 100k 30-45 ms, on a quiet machine;
+    several times that on a loaded one). A paint for any
+    other reason (expose, resize) still renders. And the paint is asked for one event-loop
+    turn after the render, not at once: the render and the showing of its frame (a copy and
+    a buffer swap, 6-25 ms) then block the GUI thread one after the other, not together.
+    """
+
+    _fresh = False  # a frame was rendered since the last paint: show it as it is
+    _paint_asked = False
+
+    def _cb_frame(self, obj, evt) -> None:  # noqa: ANN001
+        rw = self._RenderWindow
+        if rw is None or self._in_paint:
+            return
+        if rw.GetDoubleBuffer() and not rw.GetSwapBuffers():  # a back-buffer render, not to be shown
+            return
+        self._fresh = True
+        if not self._paint_asked:
+            self._paint_asked = True
+            QTimer.singleShot(0, self, self._show_frame)
+
+    def _show_frame(self) -> None:
+        self._paint_asked = False
+        if self._fresh:  # not shown meanwhile by a paint for another reason
+            self.update()
+
+    def resizeGL(self, w: int, h: int) -> None:  # noqa: N802 - Qt's name
+        self._fresh = False
+        super().resizeGL(w, h)
+
+    def paintGL(self) -> None:  # noqa: N802 - Qt's name
+        if not self._fresh or self._in_paint:
+            super().paintGL()
+            return
+        self._fresh = False
+        self._in_paint = True  # pyvistaqt's paintGL then skips its render and only blits
+        try:
+            super().paintGL()
+        finally:
+            self._in_paint = False
+
+
 class DeviationView(QWidget):
     """A pyvistaqt ``QtInteractor`` that shows one :class:`ResultView` at a time."""
-
-    ACTORS = ("bcps", "reference", "defects", "defect-labels", "selected", "camera-rays", "camera-labels")
 
     def __init__(self, parent: QWidget | None = None) -> None:
         from PySide6.QtWidgets import QVBoxLayout
@@ -62,66 +105,168 @@ class DeviationView(QWidget):
         super().__init__(parent)
         # No periodic re-render (pyvistaqt renders 5 times a second by default: 80 % of a core
         # with software OpenGL on an idle screen, measured); the view renders after each change
-        # and on interaction.
-        self.plotter = QtInteractor(self, auto_update=False)
+        # and on interaction. No multisampling (see the module's doc).
+        self.plotter = _Interactor(self, auto_update=False, multi_samples=0)
         self.plotter.set_background("#1f2428", top="#3b4450")
+        # Translucency by plain blending: VTK's order-independent transparency costs extra
+        # full-window passes (7-25 ms a render with software OpenGL, measured), and the
+        # translucent parts (a convex reference, wireframe markers) look the same without.
+        self.plotter.renderer.SetUseOIT(False)
         lay = QVBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addWidget(self.plotter.interactor)
+        # The OpenGL widget in a native window of its own (not its ancestors): a window that
+        # holds an OpenGL widget otherwise composes every repaint of any of its widgets (a
+        # label's new text) with OpenGL, which with software OpenGL costs 25-60 ms a time for
+        # the whole window (measured: 0.3 ms like this). On a native parent instead of the
+        # widget itself, the view stays black ("QOpenGLWidget: No fbo").
+        self.plotter.setAttribute(Qt.WidgetAttribute.WA_DontCreateNativeAncestors)
+        self.plotter.setAttribute(Qt.WidgetAttribute.WA_NativeWindow)
         self.view: ResultView | None = None
         self._cmap = deviation_colormap()
-        self.plotter.add_text("", name="caption", font_size=10, position="upper_left")
+        self._caption = self.plotter.add_text("", name="caption", font_size=10, position="upper_left", color="white")
         self.plotter.add_axes()
+        # Made on first use, then updated in place.
+        self._cloud: pv.PolyData | None = None
+        self._cloud_actor = None
+        self._bar_tolerance: tuple[float, float] | None = None
+        self._ref: pv.PolyData | None = None
+        self._ref_actor = None
+        self._ref_faces: np.ndarray | None = None
+        self._marks: pv.PolyData | None = None
+        self._marks_actor = None
+        self._labels: pv.PolyData | None = None
 
     # -- showing ------------------------------------------------------------------------------
-    def show_result(self, view: ResultView) -> None:
+    def show_result(self, view: ResultView, *, render: bool = True) -> None:
+        """Show ``view``: the scene updated, then one render (``render=False``: the caller
+        renders later, see :meth:`render`)."""
+        self.update_scene(view)
+        if render:
+            self.render()
+
+    def update_scene(self, view: ResultView) -> None:
+        """Put ``view`` in the scene without rendering it."""
         p = self.plotter
         self.view = view
-        # Every change below would render on its own (pyvista's scalar bar does, whatever
-        # render=False says): rendering is held until the one render at the end.
+        # Every change below could render on its own (pyvista's scalar bar does, whatever
+        # render=False says): rendering is held until render().
         p.suppress_rendering = True
         try:
-            self._replace_actors(view)
+            for name in _SELECTION:
+                p.remove_actor(name, reset_camera=False, render=False)
+            self._set_reference(view.reference)
+            self._set_cloud(view)
+            self._set_defects(view.defects)
+            self._caption.set_text("upper_left", f"{view.verdict.upper()}  {view.capture}  ({len(view.points)} points)")
+            if len(view.points):
+                self.reset_camera(render=False)
         finally:
             p.suppress_rendering = False
-        p.render()  # once: each render costs 0.15-0.6 s with software OpenGL (measured)
 
-    def _replace_actors(self, view: ResultView) -> None:
-        p = self.plotter
-        for name in self.ACTORS:
-            p.remove_actor(name, render=False)
-        if view.reference is not None:
-            v, f = view.reference
+    def render(self) -> None:
+        """One render of the scene (the widget's paint then shows it without rendering again)."""
+        self.plotter.render()
+
+    @property
+    def frame_pending(self) -> bool:
+        """Whether a frame was rendered that the widget has not shown yet (its paint comes
+        in a later event-loop turn)."""
+        return bool(self.plotter._fresh) and self.plotter.isVisible()
+
+    def _set_reference(self, reference: tuple[np.ndarray, np.ndarray] | None) -> None:
+        if reference is None:
+            if self._ref_actor is not None:
+                self._ref_actor.SetVisibility(False)
+            return
+        v, f = reference
+        v = np.asarray(v, float)
+        if self._ref is not None and self._ref_faces is not None and (
+                f is self._ref_faces or (f.shape == self._ref_faces.shape and np.array_equal(f, self._ref_faces))):
+            self._ref.points = v  # the same mesh placed anew: only its vertices move
+        else:
             faces = np.hstack([np.full((len(f), 1), 3), f]).astype(np.int64).ravel()
-            p.add_mesh(pv.PolyData(np.asarray(v, float), faces), name="reference", color="#7fa7c9", opacity=0.12,
-                       show_edges=False, pickable=False, reset_camera=False, render=False)
-        if len(view.points):
-            cloud = pv.PolyData(np.asarray(view.points, np.float32))
-            cloud["deviation / limit"] = normalised(view.deviation, view.tolerance).astype(np.float32)
-            lo, hi = view.tolerance
-            if BAR in p.scalar_bars:  # one bar, relabelled for this result's limits
-                p.remove_scalar_bar(BAR, render=False)
-            p.add_mesh(cloud, name="bcps", scalars="deviation / limit", cmap=self._cmap, clim=(-SPAN, SPAN),
-                       render_points_as_spheres=True, point_size=5, reset_camera=False, show_scalar_bar=True,
-                       annotations={-SPAN: f"{SPAN * lo:+.2f} mm", -1.0: f"{lo:+.2f} mm", 0.0: "0 mm",
-                                    1.0: f"{hi:+.2f} mm", SPAN: f"{SPAN * hi:+.2f} mm"},
-                       scalar_bar_args=dict(title=BAR, n_labels=0, vertical=True, position_x=0.86, position_y=0.12,
-                                            height=0.76, width=0.07, title_font_size=16, label_font_size=14,
-                                            color="white"), render=False)
-        if view.defects:
-            marks = pv.merge([pv.Sphere(radius=self._radius(d), center=d.position, theta_resolution=16, phi_resolution=12)
-                              for d in view.defects])
-            p.add_mesh(marks, name="defects", style="wireframe", color="#ffeb3b", line_width=1, opacity=0.45,
-                       reset_camera=False, render=False)
-            p.add_point_labels(np.array([d.position for d in view.defects]), [str(d.number) for d in view.defects],
-                               name="defect-labels", font_size=22, text_color="black", point_color="#ffeb3b",
-                               point_size=12, shape_color="#ffeb3b", shape_opacity=0.9, always_visible=True,
-                               reset_camera=False, render=False)
-        word = view.verdict.upper()
-        p.add_text(f"{word}  {view.capture}  ({len(view.points)} points)", name="caption", font_size=10,
-                   position="upper_left", color="white", render=False)
-        if len(view.points):
-            self.reset_camera(render=False)
+            mesh = pv.PolyData(v, faces)
+            if self._ref is None:
+                self._ref = mesh
+                self._ref_actor = self.plotter.add_mesh(mesh, name="reference", color="#7fa7c9", opacity=0.12,
+                                                        show_edges=False, pickable=False, reset_camera=False,
+                                                        render=False)
+            else:
+                self._ref.copy_from(mesh, deep=False)
+        self._ref_faces = f
+        self._ref_actor.SetVisibility(True)
+
+    def _set_cloud(self, view: ResultView) -> None:
+        p = self.plotter
+        if not len(view.points):
+            if self._cloud_actor is not None:
+                self._cloud_actor.SetVisibility(False)
+                if BAR in p.scalar_bars:
+                    p.scalar_bars[BAR].SetVisibility(False)
+            return
+        scaled = view.prepared.get(SCALED)
+        if scaled is None or len(scaled) != len(view.points):
+            scaled = normalised(view.deviation, view.tolerance)
+        cloud = pv.PolyData(np.asarray(view.points, np.float32))
+        cloud.point_data.set_array(np.asarray(scaled, np.float32), SCALED, deep_copy=False)
+        lo, hi = view.tolerance
+        notes = {-SPAN: f"{SPAN * lo:+.2f} mm", -1.0: f"{lo:+.2f} mm", 0.0: "0 mm", 1.0: f"{hi:+.2f} mm",
+                 SPAN: f"{SPAN * hi:+.2f} mm"}
+        if self._cloud is None:
+            self._cloud = cloud
+            self._cloud_actor = p.add_mesh(
+                cloud, name="bcps", scalars=SCALED, cmap=self._cmap, clim=(-SPAN, SPAN), point_size=POINT_PX,
+                render_points_as_spheres=False, reset_camera=False, show_scalar_bar=True, annotations=notes,
+                scalar_bar_args=dict(title=BAR, n_labels=0, vertical=True, position_x=0.86, position_y=0.12,
+                                     height=0.76, width=0.07, title_font_size=16, label_font_size=14, color="white"),
+                render=False)
+        else:
+            self._cloud.copy_from(cloud, deep=False)  # the actor's own data object, new arrays
+            if self._bar_tolerance != view.tolerance:  # the bar relabelled for this result's limits
+                self._cloud_actor.mapper.lookup_table.annotations = notes
+            self._cloud_actor.SetVisibility(True)
+        self._bar_tolerance = view.tolerance
+        if BAR in p.scalar_bars:
+            p.scalar_bars[BAR].SetVisibility(True)
+
+    def _set_defects(self, defects: tuple[DefectRow, ...]) -> None:
+        p = self.plotter
+        label_actors = [p.renderer.actors.get(n) for n in ("defect-labels-points", "defect-labels-labels")]
+        if not defects:
+            for a in [self._marks_actor, *label_actors]:
+                if a is not None:
+                    a.SetVisibility(False)
+            return
+        marks = pv.merge([pv.Sphere(radius=self._radius(d), center=d.position, theta_resolution=16, phi_resolution=12)
+                          for d in defects], merge_points=False)
+        if not isinstance(marks, pv.PolyData):
+            marks = marks.extract_surface()
+        if self._marks is None:
+            self._marks = marks
+            self._marks_actor = p.add_mesh(marks, name="defects", style="wireframe", color="#ffeb3b", line_width=1,
+                                           opacity=0.45, reset_camera=False, render=False)
+        else:
+            self._marks.copy_from(marks, deep=False)
+        self._marks_actor.SetVisibility(True)
+        from vtkmodules.vtkCommonCore import vtkStringArray
+
+        labels = pv.PolyData(np.array([d.position for d in defects], float))
+        text = vtkStringArray()
+        text.SetName("labels")
+        for d in defects:
+            text.InsertNextValue(str(d.number))
+        labels.GetPointData().AddArray(text)
+        if self._labels is None:
+            self._labels = labels
+            p.add_point_labels(labels, "labels", name="defect-labels", font_size=22, text_color="black",
+                               point_color="#ffeb3b", point_size=12, shape_color="#ffeb3b", shape_opacity=0.9,
+                               always_visible=True, reset_camera=False, render=False)
+        else:
+            self._labels.copy_from(labels, deep=True)
+            for a in label_actors:
+                if a is not None:
+                    a.SetVisibility(True)
 
     def reset_camera(self, render: bool = True) -> None:
         """Fit the part (not the whole rig) in the view."""
@@ -131,7 +276,7 @@ class DeviationView(QWidget):
         lo, hi = v.points.min(axis=0), v.points.max(axis=0)
         self.plotter.renderer.reset_camera(render=False, bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
         if render:
-            self.plotter.render()
+            self.render()
 
     @staticmethod
     def _radius(d: DefectRow) -> float:
@@ -162,8 +307,8 @@ class DeviationView(QWidget):
             if np.linalg.norm(direction) < 1e-6:
                 direction = rays[0]
         else:
-            p.remove_actor("camera-rays", render=False)
-            p.remove_actor("camera-labels", render=False)
+            for name in _SELECTION[1:]:
+                p.remove_actor(name, render=False)
         if direction is None:
             cam = np.asarray(p.camera.position) - np.asarray(p.camera.focal_point)
             direction = cam

@@ -16,8 +16,13 @@ import numpy as np
 
 from inspector.errors import InputError
 
-__all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text"]
+__all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text", "camera_thumbs",
+           "normalised", "point_arrays", "SPAN", "SCALED"]
 
+#: The colour scale spans this many tolerance widths on each side.
+SPAN = 3.0
+#: Key of :attr:`ResultView.prepared` holding the deviations in units of their limit.
+SCALED = "deviation / limit"
 #: Thumbnails are at most this many pixels on their longer side.
 THUMB_PX = 192
 #: A camera is flagged when the share of its contour rays without a consistent BCPS point
@@ -91,6 +96,11 @@ class ResultView:
         The reference mesh placed on the part (world frame).
     camera_centres : (C, 3) float
         Optical centres of the rig's cameras (world mm), in ``camera_names`` order.
+    prepared : dict
+        What was computed for drawing off the GUI thread (arrays, images), so the GUI thread
+        only hands it to the widgets: :data:`SCALED` (``(N,) float32``, deviation in units
+        of its limit, see :func:`normalised`) from :func:`from_outcome`; the GUI's worker adds
+        its own entries. A widget computes what is missing itself.
     """
 
     capture: str
@@ -111,6 +121,34 @@ class ResultView:
     camera_names: tuple[str, ...] = ()
     camera_centres: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     stats: dict[str, Any] = field(default_factory=dict)
+    prepared: dict[str, Any] = field(default_factory=dict)
+
+
+def normalised(deviation: np.ndarray, tolerance: tuple[float, float]) -> np.ndarray:
+    """Deviation in units of its own tolerance limit, as float32: -1 and +1 are the limits
+    (which may be asymmetric), so the colour scale is fixed to them whatever the numbers;
+    clipped to +-:data:`SPAN`.
+
+    Parameters
+    ----------
+    deviation : (N,) float, mm
+    tolerance : (lower, upper), mm, lower < 0 < upper
+    """
+    lo, hi = tolerance
+    d = np.asarray(deviation, np.float32)
+    return np.where(d >= 0, d / np.float32(max(hi, 1e-9)), d / np.float32(max(-lo, 1e-9))).clip(-SPAN, SPAN) \
+        .astype(np.float32, copy=False)
+
+
+def point_arrays(points: Any, deviation: Any, camera: Any, tolerance: tuple[float, float]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """The per-point arrays of a view, copied (the inspection can be dropped), and what is
+    drawn from them (``prepared``): all the work that grows with the number of points,
+    done in the thread that builds the view."""
+    pts = np.ascontiguousarray(points, np.float32).copy()
+    dev = np.ascontiguousarray(deviation, np.float32).copy()
+    cam = np.asarray(camera, np.int16).copy()
+    return pts, dev, cam, {SCALED: normalised(dev, tolerance)}
 
 
 def reason_text(verdict: str, defects: list[dict[str, Any]] | tuple[DefectRow, ...], tolerance: tuple[float, float],
@@ -184,7 +222,11 @@ def _thumb(image: np.ndarray, contour: np.ndarray) -> tuple[np.ndarray, float, n
     return np.ascontiguousarray(small), scale, np.array([u0, v0], float), np.ascontiguousarray(img)
 
 
-def _camera_thumbs(ctx: Any, keep_full: bool) -> tuple[CameraThumb, ...]:
+def camera_thumbs(ctx: Any, keep_full: bool = True) -> tuple[CameraThumb, ...]:
+    """The cameras of an inspection's context (``outcome.context``) as the strip shows them:
+    thumbnails around the silhouette, contours, flags; () without a context."""
+    if ctx is None:
+        return ()
     capture = ctx.capture
     names = capture.rig.names
     sils = {s.camera: s for s in (ctx.silhouettes or ())}
@@ -228,12 +270,15 @@ def _placed(reference: Any, pose: np.ndarray | None) -> tuple[np.ndarray, np.nda
     return np.asarray(reference.vertices, float) @ pose[:3, :3].T + pose[:3, 3], np.asarray(reference.faces, np.int64)
 
 
-def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, keep_full: bool = True) -> ResultView:
+def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, keep_full: bool = True,
+                 cameras: bool = True) -> ResultView:
     """The view of a fresh inspection (an :class:`inspector.runner.Outcome`).
 
     ``reference`` is the session's :class:`~inspector.reference.Reference` (drawn on the
     part, translucent). Call it in the thread that ran the inspection: it copies what it
-    needs, so the outcome can be dropped right after.
+    needs, so the outcome can be dropped right after. ``cameras=False`` leaves the camera
+    thumbnails out (the slowest part: the verdict can be shown before they are made with
+    :func:`camera_thumbs`).
     """
     from inspector.outputs import result_to_json
 
@@ -248,11 +293,11 @@ def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, ke
     points = np.zeros((0, 3), np.float32)
     deviation = np.zeros(0, np.float32)
     camera = np.zeros(0, np.int16)
+    prepared: dict[str, Any] = {}
     if res.bcps is not None:
-        points = np.asarray(res.bcps.points, np.float32).copy()
-        deviation = np.asarray(res.bcps.deviation, np.float32).copy()
-        camera = np.asarray(res.bcps.camera, np.int16).copy()
-    thumbs = _camera_thumbs(ctx, keep_full) if ctx is not None else ()
+        points, deviation, camera, prepared = point_arrays(res.bcps.points, res.bcps.deviation, res.bcps.camera,
+                                                           tolerance)
+    thumbs = camera_thumbs(ctx, keep_full) if cameras else ()
     return ResultView(
         capture=res.capture,
         verdict=res.verdict,
@@ -272,6 +317,7 @@ def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, ke
         camera_names=names,
         camera_centres=centres,
         stats=doc["stats"],
+        prepared=prepared,
     )
 
 
@@ -339,5 +385,6 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
         camera_names=names,
         camera_centres=centres,
         stats=stats,
+        prepared={SCALED: normalised(deviation, tolerance)},
     )
 

@@ -1,6 +1,11 @@
 """The operator screen's 2D widgets: verdict banner, defect table, camera strip (and the
 large camera view), history strip. They draw a :class:`~inspector.gui.viewmodel.ResultView`
 or history rows; none of them runs anything.
+
+What takes time to draw is made off the GUI thread by :func:`prepare_view` (camera
+thumbnails with their contours as ``QImage``, the history rows and the trend chart as an
+image: ``QImage``, ``QPainter`` on an image and matplotlib's Agg canvas may be used in any
+thread); the widgets then only swap pictures, in place.
 """
 
 from __future__ import annotations
@@ -8,9 +13,12 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import dataclasses
+import threading
+
 import numpy as np
-from PySide6.QtCore import QPointF, QRectF, QSize, Qt, Signal
-from PySide6.QtGui import QColor, QImage, QKeySequence, QPainter, QPainterPath, QPen, QPixmap, QShortcut
+from PySide6.QtCore import QEvent, QPointF, QRect, QRectF, QSize, Qt, QTimer, Signal
+from PySide6.QtGui import QColor, QFont, QImage, QKeySequence, QPainter, QPainterPath, QPen, QPixmap, QShortcut
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QDialog,
@@ -27,13 +35,25 @@ from PySide6.QtWidgets import (
     QSizePolicy,
     QTableWidget,
     QTableWidgetItem,
+    QToolTip,
     QVBoxLayout,
     QWidget,
 )
 
 from inspector.gui.viewmodel import CameraThumb, ResultView
 
-__all__ = ["VERDICT_STYLE", "VerdictBanner", "DefectTable", "CameraStrip", "CameraDialog", "HistoryStrip"]
+__all__ = ["VERDICT_STYLE", "VerdictBanner", "DefectTable", "CameraStrip", "CameraDialog", "HistoryStrip",
+           "tile_image", "history_chart", "prepare_view", "PICTURES", "HISTORY"]
+
+#: Keys of :attr:`ResultView.prepared` filled by :func:`prepare_view`.
+PICTURES = "camera pictures"
+HISTORY = "history"
+#: History rows the strip reads (chips show the last ``HistoryStrip.CHIPS`` of them).
+HISTORY_ROWS = 50
+#: matplotlib's figures are not meant to be drawn by two threads at once.
+_MPL_LOCK = threading.Lock()
+#: The figure :func:`history_chart` draws on (under the lock), and its size.
+_CHART: dict[str, Any] = {}
 
 #: Verdict -> (word, icon glyph, background). The word and the glyph say it without colour.
 VERDICT_STYLE: dict[str, tuple[str, str, str]] = {
@@ -70,6 +90,73 @@ def _points_path(uv: np.ndarray, scale: float, gap_px: float = 2.5) -> QPainterP
         else:
             path.lineTo(x, y)
     return path
+
+
+def tile_image(thumb: CameraThumb) -> QImage:
+    """The thumbnail of ``thumb`` with its sub-pixel contour drawn over it (RGB32); safe in
+    any thread."""
+    img = _qimage(thumb.image).convertToFormat(QImage.Format.Format_RGB32)
+    painter = QPainter(img)
+    painter.setRenderHint(QPainter.RenderHint.Antialiasing)
+    painter.setPen(QPen(QColor("#00e676"), 1.2))
+    painter.drawPath(_points_path(thumb.contour - thumb.origin, thumb.scale))
+    painter.end()
+    return img
+
+
+def history_chart(rows: list[dict[str, Any]], size: tuple[int, int], ratio: float = 1.0) -> QImage:
+    """The trend chart of ``rows`` (``inspector history --plot``'s drawing, same data and
+    limits) as an image of ``size`` (logical pixels) at device-pixel ``ratio``; safe in any
+    thread (drawn on one module-level figure, under a lock)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from inspector_plugins.history import draw_history
+
+    dpi = 90.0 * ratio
+    w, h = max(1, round(size[0] * ratio)), max(1, round(size[1] * ratio))
+    with _MPL_LOCK:
+        # One figure, drawn anew each time.
+        if _CHART.get("key") != (w, h, dpi):
+            figure = Figure(figsize=(w / dpi, h / dpi), dpi=dpi)
+            _CHART.update(key=(w, h, dpi), figure=figure, canvas=FigureCanvasAgg(figure))
+        figure, canvas = _CHART["figure"], _CHART["canvas"]
+        figure.clear()
+        ax = figure.add_subplot(111)
+        if rows:
+            draw_history(ax, rows, labels=False)
+        ax.tick_params(labelsize=7)
+        figure.subplots_adjust(left=0.08, right=0.99, top=0.85, bottom=0.12)
+        canvas.draw()
+        buf = np.asarray(canvas.buffer_rgba())
+        img = QImage(buf.data, buf.shape[1], buf.shape[0], buf.strides[0], QImage.Format.Format_RGBA8888).copy()
+    img.setDevicePixelRatio(ratio)
+    return img
+
+
+def read_rows(outdir: Path | None) -> list[dict[str, Any]]:
+    """The last :data:`HISTORY_ROWS` rows of ``outdir/history.sqlite`` ([] when there is none)."""
+    from inspector.errors import InputError
+    from inspector_plugins.history import read_history
+
+    if outdir is None:
+        return []
+    try:
+        return read_history(outdir, last=HISTORY_ROWS)
+    except InputError:
+        return []
+
+
+def prepare_view(view: ResultView, outdir: Path | None, chart: tuple[tuple[int, int], float] | None) -> ResultView:
+    """``view`` with what its drawing needs made ahead, in the calling (worker) thread: the
+    camera pictures (:data:`PICTURES`) and, with ``chart`` (size and device-pixel ratio of
+    the history chart), the history rows of ``outdir`` and their chart (:data:`HISTORY`)."""
+    prepared = dict(view.prepared)
+    prepared[PICTURES] = {t.name: tile_image(t) for t in view.cameras}
+    if chart is not None:
+        rows = read_rows(outdir)
+        prepared[HISTORY] = (rows, history_chart(rows, *chart))
+    return dataclasses.replace(view, prepared=prepared)
 
 
 class VerdictBanner(QFrame):
@@ -187,37 +274,41 @@ class CameraTile(QLabel):
 
     opened = Signal(str)
 
-    def __init__(self, thumb: CameraThumb, parent: QWidget | None = None) -> None:
+    def __init__(self, thumb: CameraThumb, parent: QWidget | None = None, picture: QImage | None = None) -> None:
         super().__init__(parent)
-        self.thumb = thumb
         self.highlighted = False
         self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self.setMinimumSize(56, 56)
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self.set_thumb(thumb, picture)
+
+    def set_thumb(self, thumb: CameraThumb, picture: QImage | None = None) -> None:
+        """Show ``thumb`` (``picture``: its :func:`tile_image`, made ahead; else made here)."""
+        self.thumb = thumb
+        self.highlighted = False
         tip = thumb.name + ("\n" + "\n".join(thumb.flags) if thumb.flags else "")
         self.setToolTip(tip + "\n(double-click or Enter: open large)")
         self.setAccessibleName(f"camera {thumb.name}" + (" flagged" if thumb.flags else ""))
-        self._pixmap = self._render()
-
-    def _render(self) -> QPixmap:
-        t = self.thumb
-        pm = QPixmap.fromImage(_qimage(t.image).convertToFormat(QImage.Format.Format_RGB32))
-        painter = QPainter(pm)
-        painter.setRenderHint(QPainter.RenderHint.Antialiasing)
-        painter.setPen(QPen(QColor("#00e676"), 1.2))
-        painter.drawPath(_points_path(t.contour - t.origin, t.scale))
-        painter.end()
-        return pm
+        self._pixmap = QPixmap.fromImage(picture if picture is not None else tile_image(thumb))
+        self._scaled: QPixmap | None = None  # the pixmap at the tile's size, made on the first paint
+        self.update()
 
     def set_highlighted(self, on: bool) -> None:
-        self.highlighted = on
-        self.update()
+        if on != self.highlighted:
+            self.highlighted = on
+            self.update()
+
+    def resizeEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        self._scaled = None
+        super().resizeEvent(event)
 
     def paintEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
         p = QPainter(self)
         r = self.rect()
-        scaled = self._pixmap.scaled(r.size() - QSize(6, 6), Qt.AspectRatioMode.KeepAspectRatio,
-                                     Qt.TransformationMode.SmoothTransformation)
+        if self._scaled is None:
+            self._scaled = self._pixmap.scaled(r.size() - QSize(6, 6), Qt.AspectRatioMode.KeepAspectRatio,
+                                               Qt.TransformationMode.SmoothTransformation)
+        scaled = self._scaled
         x = (r.width() - scaled.width()) // 2
         y = (r.height() - scaled.height()) // 2
         p.drawPixmap(x, y, scaled)
@@ -246,7 +337,8 @@ class CameraTile(QLabel):
 
 
 class CameraStrip(QWidget):
-    """The rig's cameras in a grid; ``opened(name)`` on a double-click or Enter."""
+    """The rig's cameras in a grid; ``opened(name)`` on a double-click or Enter. The same
+    cameras as the last result: the tiles are kept and their pictures swapped."""
 
     opened = Signal(str)
 
@@ -261,21 +353,27 @@ class CameraStrip(QWidget):
         self.grid.addWidget(self.placeholder, 0, 0)
 
     def show_result(self, view: ResultView) -> None:
-        for tile in self.tiles.values():
-            self.grid.removeWidget(tile)
-            tile.deleteLater()
-        self.tiles = {}
+        pictures = view.prepared.get(PICTURES) or {}
+        names = [t.name for t in view.cameras]
+        if names != list(self.tiles):
+            for tile in self.tiles.values():
+                self.grid.removeWidget(tile)
+                tile.deleteLater()
+            self.tiles = {}
+            cols = max(1, int(np.ceil(np.sqrt(len(view.cameras)))))
+            for k, thumb in enumerate(view.cameras):
+                tile = CameraTile(thumb, self, pictures.get(thumb.name))
+                tile.opened.connect(self.opened)
+                self.grid.addWidget(tile, 1 + k // cols, k % cols)
+                self.tiles[thumb.name] = tile
+        else:
+            for thumb in view.cameras:
+                self.tiles[thumb.name].set_thumb(thumb, pictures.get(thumb.name))
         self.placeholder.setVisible(not view.cameras)
         if not view.cameras:
             self.placeholder.setText("No camera images: this result was opened from its folder."
                                      if view.folder is not None and view.verdict != "aborted" else
                                      "Camera images appear here after an inspection.")
-        cols = max(1, int(np.ceil(np.sqrt(len(view.cameras)))))
-        for k, thumb in enumerate(view.cameras):
-            tile = CameraTile(thumb, self)
-            tile.opened.connect(self.opened)
-            self.grid.addWidget(tile, 1 + k // cols, k % cols)
-            self.tiles[thumb.name] = tile
 
     def highlight(self, names: tuple[str, ...] | list[str]) -> None:
         for n, tile in self.tiles.items():
@@ -337,28 +435,134 @@ class CameraDialog(QDialog):
         self.fit()
 
 
+class _Chips(QWidget):
+    """The last parts as chips: the verdict's glyph on its colour (word in the tooltip),
+    oldest first; painted in one widget, updated in place."""
+
+    SIZE = QSize(26, 34)
+    GAP = 3
+
+    def __init__(self, count: int, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.count = count
+        self.rows: list[dict[str, Any]] = []
+        self.setMinimumHeight(self.SIZE.height())
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
+        self.setAccessibleName("history: last parts")
+
+    def sizeHint(self) -> QSize:  # noqa: N802 - Qt's name
+        return QSize(self.count * (self.SIZE.width() + self.GAP), self.SIZE.height())
+
+    def set_rows(self, rows: list[dict[str, Any]]) -> None:
+        self.rows = list(rows[-self.count:])
+        self.setAccessibleDescription(", ".join(VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])[0]
+                                                for r in self.rows))
+        self.update()
+
+    def _rect(self, k: int) -> QRect:
+        return QRect(k * (self.SIZE.width() + self.GAP), 0, self.SIZE.width(), self.SIZE.height())
+
+    def paintEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        p = QPainter(self)
+        p.setRenderHint(QPainter.RenderHint.Antialiasing)
+        f = QFont(self.font())
+        f.setPointSize(13)
+        p.setFont(f)
+        for k, r in enumerate(self.rows):
+            word, glyph, bg = VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])
+            rect = self._rect(k)
+            p.setPen(Qt.PenStyle.NoPen)
+            p.setBrush(QColor(bg))
+            p.drawRoundedRect(QRectF(rect), 3, 3)
+            p.setPen(QColor("white"))
+            p.drawText(rect, Qt.AlignmentFlag.AlignCenter, glyph)
+        p.end()
+
+    def event(self, event: QEvent) -> bool:
+        if event.type() == QEvent.Type.ToolTip:
+            for k, r in enumerate(self.rows):
+                if self._rect(k).contains(event.pos()):
+                    word = VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])[0]
+                    QToolTip.showText(event.globalPos(), f"{r['capture']}: {word}" + (
+                        f", worst {r['worst_mm']:+.3f} mm" if r.get("worst_mm") is not None else ""), self)
+                    return True
+            QToolTip.hideText()
+            event.ignore()
+            return True
+        return super().event(event)
+
+
+class _Chart(QWidget):
+    """A picture made elsewhere (the history chart), drawn at the widget's size; asks for a
+    new one (``resized``) when its size changed and stays so for a moment."""
+
+    resized = Signal()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.image: QImage | None = None
+        self._px: tuple[tuple[int, int], float] = ((self.width(), self.height()), 1.0)
+        self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Expanding)
+        self._settle = QTimer(self)
+        self._settle.setSingleShot(True)
+        self._settle.setInterval(150)
+        self._settle.timeout.connect(self._check)
+
+    def sizeHint(self) -> QSize:  # noqa: N802 - Qt's name
+        return QSize(720, 171)  # the figure of `inspector history --plot`'s strip: 8 x 1.9 in at 90 dpi
+
+    def size_px(self) -> tuple[tuple[int, int], float]:
+        """(logical size, device-pixel ratio) a picture for this widget should have: a value
+        kept on each resize, so another thread may ask."""
+        return self._px
+
+    def fits(self, image: QImage | None) -> bool:
+        return image is not None and image.deviceIndependentSize().toSize() == self.size()
+
+    def set_image(self, image: QImage) -> None:
+        self.image = image
+        self.update()
+
+    def resizeEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        super().resizeEvent(event)
+        self._px = ((self.width(), self.height()), float(self.devicePixelRatioF()))
+        self._settle.start()
+
+    def _check(self) -> None:
+        if not self.fits(self.image):
+            self.resized.emit()
+
+    def paintEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        if self.image is None:
+            return
+        p = QPainter(self)
+        if not self.fits(self.image):
+            p.setRenderHint(QPainter.RenderHint.SmoothPixmapTransform)
+        p.drawImage(self.rect(), self.image)
+        p.end()
+
+
 class HistoryStrip(QWidget):
     """The last parts as verdict chips (word and colour), the yield, and the trend chart of
-    ``inspector history --plot`` (same rows, same drawing function, same limits)."""
+    ``inspector history --plot`` (same rows, same drawing function, same limits).
+
+    The chart is a picture made by :func:`history_chart`: by :func:`prepare_view` in the
+    worker thread after an inspection, here after :meth:`refresh` or a resize."""
 
     CHIPS = 24
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(parent)
-        from matplotlib.backends.backend_qtagg import FigureCanvasQTAgg
-        from matplotlib.figure import Figure
-
-        self.figure = Figure(figsize=(8, 1.9), dpi=90)
-        self.canvas = FigureCanvasQTAgg(self.figure)
+        self.canvas = _Chart()
         self.canvas.setMinimumHeight(100)
         self.canvas.setMaximumHeight(170)
-        self.chips = QHBoxLayout()
-        self.chips.setSpacing(3)
+        self.canvas.resized.connect(self._redraw)
+        self.chips = _Chips(self.CHIPS)
         self.yield_label = QLabel("no inspection yet")
         self.yield_label.setStyleSheet("font-size: 14pt; font-weight: bold;")
         left = QVBoxLayout()
         left.addWidget(self.yield_label)
-        left.addLayout(self.chips)
+        left.addWidget(self.chips)
         left.addStretch(1)
         lay = QHBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
@@ -366,44 +570,31 @@ class HistoryStrip(QWidget):
         lay.addWidget(self.canvas, 3)
         self.rows: list[dict[str, Any]] = []
 
+    def chart_size(self) -> tuple[tuple[int, int], float]:
+        """Size and device-pixel ratio of the chart (for :func:`prepare_view`)."""
+        return self.canvas.size_px()
+
     def refresh(self, outdir: Path | None) -> None:
         """Re-read ``outdir/history.sqlite`` (nothing when there is none yet)."""
-        from inspector.errors import InputError
-        from inspector_plugins.history import read_history
+        self.show_rows(read_rows(outdir))
 
-        rows: list[dict[str, Any]] = []
-        if outdir is not None:
-            try:
-                rows = read_history(outdir, last=50)
-            except InputError:
-                rows = []
-        self.show_rows(rows)
-
-    def show_rows(self, rows: list[dict[str, Any]]) -> None:
-        from inspector_plugins.history import draw_history, tally
+    def show_rows(self, rows: list[dict[str, Any]], chart: QImage | None = None) -> None:
+        """Show ``rows``; ``chart``: their :func:`history_chart`, made ahead (else drawn here,
+        or later when it was made for another size)."""
+        from inspector_plugins.history import tally
 
         self.rows = rows
-        while self.chips.count():
-            w = self.chips.takeAt(0).widget()
-            if w is not None:
-                w.deleteLater()
-        for r in rows[-self.CHIPS:]:
-            word, glyph, bg = VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])
-            chip = QLabel(glyph)
-            chip.setAlignment(Qt.AlignmentFlag.AlignCenter)
-            chip.setFixedSize(26, 34)
-            chip.setToolTip(f"{r['capture']}: {word}" + (f", worst {r['worst_mm']:+.3f} mm" if r.get("worst_mm") is not None else ""))
-            chip.setStyleSheet(f"background: {bg}; color: white; font-size: 13pt; border-radius: 3px;")
-            self.chips.addWidget(chip)
-        self.chips.addStretch(1)
+        self.chips.set_rows(rows)
         n, share = tally(rows)
-        self.yield_label.setText(
-            f"yield {share:.1%}  ({n['pass']} pass, {n['fail']} fail, {n['error']} error)" if share is not None
-            else ("no part judged yet" if not rows else f"{n['error']} error"))
-        self.figure.clear()
-        ax = self.figure.add_subplot(111)
-        if rows:
-            draw_history(ax, rows, labels=False)
-        ax.tick_params(labelsize=7)
-        self.figure.subplots_adjust(left=0.08, right=0.99, top=0.85, bottom=0.12)
-        self.canvas.draw_idle()
+        text = (f"yield {share:.1%}  ({n['pass']} pass, {n['fail']} fail, {n['error']} error)" if share is not None
+                else ("no part judged yet" if not rows else f"{n['error']} error"))
+        if text != self.yield_label.text():
+            self.yield_label.setText(text)
+        if chart is None:
+            chart = history_chart(rows, *self.chart_size())
+        self.canvas.set_image(chart)
+        if not self.canvas.fits(chart):
+            self.canvas._settle.start()  # the strip was resized meanwhile: drawn again at its size
+
+    def _redraw(self) -> None:
+        self.canvas.set_image(history_chart(self.rows, *self.chart_size()))

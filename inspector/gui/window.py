@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -32,13 +34,13 @@ from PySide6.QtWidgets import (
 from inspector.errors import InputError, InspectorError, RecipeError
 from inspector.gui.view3d import DeviationView
 from inspector.gui.viewmodel import ResultView, from_folder
-from inspector.gui.widgets import CameraDialog, CameraStrip, DefectTable, HistoryStrip, VerdictBanner
+from inspector.gui.widgets import HISTORY, CameraDialog, CameraStrip, DefectTable, HistoryStrip, VerdictBanner, prepare_view
 from inspector.gui.worker import SessionWorker
 from inspector.manager import PluginManager, create_plugin_manager
 from inspector.roles import ENGINEER, RoleSession
 from inspector.session import Session, Source
 
-__all__ = ["MainWindow"]
+__all__ = ["MainWindow", "freeze_startup_objects"]
 
 STYLE = """
 QWidget { font-size: 12pt; }
@@ -50,6 +52,37 @@ QPushButton { min-height: 44px; }
 QPushButton:focus { border: 3px solid #ffab00; }
 QTableWidget { font-size: 13pt; }
 """
+
+
+#: After a result is drawn, objects left out of the garbage collector's scans again once
+#: more than this many are tracked (what the first inspections import lazily).
+REFREEZE_OBJECTS = 20_000
+
+
+def freeze_startup_objects(window: MainWindow | None = None) -> None:
+    """Leave the objects alive now (modules, Qt, VTK and matplotlib wrappers: some 420k) out
+    of Python's full garbage collections from now on (``gc.freeze``). A full collection
+    scans every tracked object, in whichever thread triggers it and holding the GIL: with
+    them it blocked the GUI thread 300-900 ms every eleventh inspection or so (measured);
+    without them it takes a few ms. The modules the first inspection imports (some 130k
+    objects: 70-90 ms a full collection, every few inspections) are left out too: with
+    ``window``, after each result it draws while more than :data:`REFREEZE_OBJECTS` objects
+    are tracked. Call once, when the window is up (``inspector gui`` and ``bench --gui`` do;
+    a test suite need not: its leak checks look for objects with ``gc.get_objects``, which
+    leaves frozen ones out)."""
+    import gc
+
+    gc.collect()
+    gc.freeze()
+    if window is not None:
+        window.result_shown.connect(_refreeze)
+
+
+def _refreeze(view: Any) -> None:
+    import gc
+
+    if len(gc.get_objects()) > REFREEZE_OBJECTS:
+        gc.freeze()  # no collection first: it would cost what is avoided (a few garbage objects stay)
 
 
 class _Activity(QObject):
@@ -78,8 +111,20 @@ class MainWindow(QMainWindow):
         A capture folder to inspect with INSPECT, or an inbox for LIVE.
     idle_logout_s : float
         Engineer mode falls back to operator after this long without a key or a click.
+
+    Signals
+    -------
+    verdict_shown(object)
+        A result's verdict is on screen (banner and defect table painted); the 3D view, the
+        cameras and the history follow, one per event-loop turn.
+    result_shown(object)
+        A result is drawn everywhere (the complete :class:`ResultView`).
+    run_finished(object)
+        A run ended (its :class:`~inspector.session.RunSummary`, or None), once its last
+        result is drawn.
     """
 
+    verdict_shown = Signal(object)
     result_shown = Signal(object)
     run_finished = Signal(object)
 
@@ -104,6 +149,22 @@ class MainWindow(QMainWindow):
         self.live = False
         self.plugin_warnings: list[str] = []
         self._closing = False
+        # Drawing a result is split into steps, one per event-loop turn (no turn blocks the
+        # GUI thread long): (name, call) still to run, and how long each took last time.
+        self._steps: list[tuple[str, Any]] = []
+        self._early: ResultView | None = None  # a verdict shown whose complete view is awaited
+        self._ended: Any = None  # a run's end, told once its last result is drawn
+        self._ended_pending = False
+        self._selected: tuple[str, ...] | None = None  # cameras of the selected defect
+        self._waited = 0  # turns the "3d shown" step waited for the frame's paint
+        self.draw_times: dict[str, float] = {}
+        self._step_timer = QTimer(self)
+        self._step_timer.setSingleShot(True)
+        self._step_timer.setInterval(0)
+        self._step_timer.timeout.connect(self._step)
+        # Set once the 3D view of a result is drawn: the worker then makes its pictures (not
+        # while the software OpenGL render needs the CPU).
+        self._gate = threading.Event()
         self._build()
         self._activity = _Activity(self.roles)
         from PySide6.QtWidgets import QApplication
@@ -239,9 +300,11 @@ class MainWindow(QMainWindow):
             self.recipe_error = str(e)
         else:
             self.recipe_error = None
-            self.worker = SessionWorker(self.session, self)
+            self.worker = SessionWorker(self.session, self, prepare=self._prepare)
+            self.worker.drawing_gate = self._gate
             self.worker.started.connect(self._on_started)
             self.worker.stage.connect(self._on_stage)
+            self.worker.verdict.connect(self._on_verdict)
             self.worker.result.connect(self.show_result)
             self.worker.warned.connect(lambda t: self.progress_label.setText(f"\u26a0 warning: {t}"))
             self.worker.failed.connect(self._on_failed)
@@ -351,34 +414,143 @@ class MainWindow(QMainWindow):
             if self.banner.state == "busy":
                 self.banner.set_state("ready", "nothing was inspected")
         self.inspect_button.setFocus()
-        self.run_finished.emit(summary)
+        if self._early is not None:  # its complete view never came (the worker sends it before the end)
+            self._early = None
+            self._steps.append(("done", self._drawn))
+        if self._steps:  # told once the last result is drawn
+            self._ended, self._ended_pending = summary, True
+            self._step_timer.start()
+        else:
+            self.run_finished.emit(summary)
+
+    # -- showing a result ---------------------------------------------------------------------
+    def _prepare(self, view: ResultView) -> ResultView:
+        """In the worker thread: the drawing of ``view`` made ahead (camera pictures, history
+        rows and chart). Reads no widget: the chart's size is a value the strip keeps."""
+        return prepare_view(view, self.out, self.history.chart_size())
+
+    def _on_verdict(self, view: ResultView) -> None:
+        """A result without its camera images, as soon as it is written: the verdict now, the
+        3D view next; the cameras and the history with its complete view (show_result)."""
+        if self._closing:
+            return
+        self._begin(view, complete=False)
 
     def show_result(self, view: ResultView) -> None:
-        """Draw one result everywhere (on the GUI thread)."""
+        """Draw one result everywhere (on the GUI thread): the verdict at once (banner and
+        defect table painted before this returns, then ``verdict_shown``), then the 3D
+        scene, its render, the cameras and the history strip, each in its own event-loop
+        turn, then ``result_shown``. A newer result drops what is left of an older one."""
         if self._closing:  # a result queued while the window closed: written, not drawn
             return
+        early = self._early
+        if early is not None and view.points is early.points and view.capture == early.capture:
+            # The complete view of the verdict on screen: what was left to draw.
+            self._early = None
+            self.current_result = view
+            self._steps += self._rest(view)
+            self._step_timer.start()
+            return
+        self._begin(view, complete=True)
+
+    def _begin(self, view: ResultView, *, complete: bool) -> None:
+        t0 = time.perf_counter()
+        if self._ended_pending:  # the last run's end: told now, its drawing is replaced
+            summary, self._ended, self._ended_pending = self._ended, None, False
+            self.run_finished.emit(summary)
+        self._early = None if complete else view
+        self._selected = None
+        self._waited = 0
         self.current_result = view
         self.banner.show_result(view)
-        self.view3d.show_result(view)
         self.defects.show_result(view)
-        self.cameras.show_result(view)
-        self.history.refresh(self.out)
         self.progress_label.setText(f"{view.capture}: {view.verdict.upper()}"
                                     + (f" in {view.cycle_s:.2f} s" if view.cycle_s is not None else ""))
         self._update_buttons()
         self.inspect_button.setFocus()
-        self.result_shown.emit(view)
+        self.banner.repaint()  # on screen now, before anything else is drawn
+        self.draw_times = {"verdict": time.perf_counter() - t0}
+        self.verdict_shown.emit(view)
+        self._steps = [("3d scene", lambda: self.view3d.update_scene(view)), ("3d render", self.view3d.render),
+                       ("3d shown", self._after_3d)]
+        if complete:
+            self._steps += self._rest(view)
+        self._step_timer.start()
+
+    def _after_3d(self) -> bool:
+        """Once the 3D view's frame is on screen (False: not yet, again next turn; a few
+        turns at most), the worker may make its pictures: not while software OpenGL renders
+        and shows the frame on the same CPU cores."""
+        self._waited += 1
+        if self.view3d.frame_pending and self._waited < 10:
+            return False
+        self._waited = 0
+        self._gate.set()
+        return True
+
+    def _rest(self, view: ResultView) -> list[tuple[str, Any]]:
+        return [("cameras", lambda: self._show_cameras(view)), ("history", lambda: self._show_history(view)),
+                ("done", self._drawn)]
+
+    def _show_cameras(self, view: ResultView) -> None:
+        self.cameras.show_result(view)
+        if self._selected is not None:
+            self.cameras.highlight(self._selected)
+
+    def _show_history(self, view: ResultView) -> None:
+        prepared = view.prepared.get(HISTORY)
+        if prepared is None:  # a result opened from its folder: read here
+            self.history.refresh(self.out)
+        else:
+            self.history.show_rows(*prepared)
+
+    def _drawn(self) -> None:
+        self.result_shown.emit(self.current_result)
+        if self._ended_pending:
+            summary, self._ended, self._ended_pending = self._ended, None, False
+            self.run_finished.emit(summary)
+
+    def _step(self) -> None:
+        """One step of the drawing (the timer calls it once per event-loop turn)."""
+        if self._closing or not self._steps:
+            return
+        name, call = self._steps.pop(0)
+        t0 = time.perf_counter()
+        if call() is False:  # not yet: again in the next turn
+            self._steps.insert(0, (name, call))
+        self.draw_times[name] = time.perf_counter() - t0
+        if self._steps:
+            self._step_timer.start()
+
+    def flush_drawing(self) -> None:
+        """Draw what is left of the result now (before the view is used: a defect selected,
+        a camera opened, a report exported)."""
+        self._step_timer.stop()
+        self._gate.set()  # drawn here and now: the worker need not wait for it
+        self._waited = 0
+        while self._steps and not self._closing:
+            name, call = self._steps.pop(0)
+            if name != "3d shown":
+                call()
+
+    @property
+    def drawing(self) -> bool:
+        """Whether a result is still being drawn."""
+        return bool(self._steps) or self._early is not None
 
     def select_defect(self, index: int) -> None:
+        self.flush_drawing()
         v = self.current_result
         if v is None or not 0 <= index < len(v.defects):
             return
         self.view3d.fly_to(index)
-        self.cameras.highlight(v.defects[index].cameras)
+        self._selected = tuple(v.defects[index].cameras)
+        self.cameras.highlight(self._selected)
         d = v.defects[index]
         self.progress_label.setText(f"defect {d.number}: {d.kind} material {d.worst_mm:+.3f} mm, seen by {', '.join(d.cameras) or 'no camera'}")
 
     def open_camera(self, name: str) -> CameraDialog | None:
+        self.flush_drawing()
         v = self.current_result
         thumb = next((t for t in (v.cameras if v else ()) if t.name == name), None)
         if thumb is None:
@@ -419,6 +591,7 @@ class MainWindow(QMainWindow):
         """report.pdf in the shown result's folder, with the 3D view as its picture."""
         from inspector.report import render_pdf
 
+        self.flush_drawing()
         v = self.current_result
         if v is None or v.folder is None:
             self.progress_label.setText("no written result to export")
@@ -508,6 +681,9 @@ class MainWindow(QMainWindow):
         from PySide6.QtWidgets import QApplication
 
         self._closing = True
+        self._step_timer.stop()
+        self._steps = []
+        self._gate.set()
         self._idle.stop()
         self._close_session()
         QApplication.instance().removeEventFilter(self._activity)

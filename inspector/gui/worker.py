@@ -6,22 +6,31 @@ signals whose receivers live in the GUI thread, which Qt delivers through the ev
 (a queued connection). Stage progress comes from the lifecycle hooks
 (``inspector_before_stage`` / ``inspector_after_stage``) of a small plugin registered on the
 session's plugin manager; results are turned into a :class:`~inspector.gui.viewmodel.ResultView`
-in the worker, so the GUI thread only draws.
+in the worker, so the GUI thread only draws. Each result comes twice: first at once without
+its camera images (``verdict``: the banner need not wait for them), then complete, with what
+its drawing needs made ahead by the ``prepare`` function (``result``). With a
+``drawing_gate``, the worker makes those pictures only once the GUI has drawn the 3D view (or
+after :data:`GATE_S`): with software OpenGL the render runs on the same CPU cores.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import sys
 import threading
-from typing import Any
+from typing import Any, Callable
 
 from PySide6.QtCore import QObject, Signal
 
 from inspector import hookimpl
 from inspector.errors import InspectorError
-from inspector.gui.viewmodel import from_outcome
+from inspector.gui.viewmodel import ResultView, camera_thumbs, from_outcome
 from inspector.session import Inspected, RunEnded, RunStarted, Session, Source, Warned
 
-__all__ = ["SessionWorker"]
+__all__ = ["SessionWorker", "GATE_S"]
+
+#: The longest the worker waits for its ``drawing_gate`` after sending a verdict, s.
+GATE_S = 2.0
 
 
 class _Progress:
@@ -48,8 +57,12 @@ class SessionWorker(QObject):
         A run began (its source in words).
     stage(str, str, float)
         capture, stage name, seconds (-1 when the stage starts).
+    verdict(object)
+        A result as soon as it is written: a :class:`~inspector.gui.viewmodel.ResultView`
+        without camera thumbnails. Its ``result`` follows.
     result(object)
-        A :class:`~inspector.gui.viewmodel.ResultView` (also for ``aborted``).
+        The same result complete (its ``points`` are the very arrays of the ``verdict``'s
+        view), with ``prepare`` applied (also for ``aborted``).
     warned(str)
         A warning of the run (each once).
     ended(object)
@@ -60,14 +73,23 @@ class SessionWorker(QObject):
 
     started = Signal(str)
     stage = Signal(str, str, float)
+    verdict = Signal(object)
     result = Signal(object)
     warned = Signal(str)
     ended = Signal(object)
     failed = Signal(str)
 
-    def __init__(self, session: Session, parent: QObject | None = None) -> None:
+    def __init__(self, session: Session, parent: QObject | None = None, *,
+                 prepare: Callable[[ResultView], ResultView] | None = None) -> None:
         super().__init__(parent)
         self.session = session
+        #: Called in the worker thread on each complete view before ``result``: what the
+        #: drawing needs, made ahead (thread-safe work only: arrays, images, files).
+        self.prepare = prepare
+        #: When an Event: cleared before each ``verdict``, then waited for (at most
+        #: :data:`GATE_S`) before the camera pictures are made; the GUI sets it once it has
+        #: drawn what needs the CPU most (the 3D view).
+        self.drawing_gate: threading.Event | None = None
         self._thread: threading.Thread | None = None
         self._progress = _Progress(self)
         session.pm.register(self._progress, name="inspector-gui-progress")
@@ -120,7 +142,24 @@ class SessionWorker(QObject):
         if isinstance(event, RunStarted):
             self.started.emit(event.source)
         elif isinstance(event, Inspected):
-            self.result.emit(from_outcome(event.outcome, event.folder, self.session.reference))
+            outcome = event.outcome
+            view = from_outcome(outcome, event.folder, self.session.reference, cameras=False)
+            gate = self.drawing_gate
+            if gate is not None:
+                gate.clear()
+            self.verdict.emit(view)
+            if gate is not None:
+                gate.wait(GATE_S)
+            full = view
+            try:
+                full = dataclasses.replace(view, cameras=camera_thumbs(outcome.context))
+                if self.prepare is not None:
+                    full = self.prepare(full)
+            except Exception as e:  # noqa: BLE001 - the result is written and shown; only pictures are missing
+                msg = " ".join(str(e).split())
+                print(f"inspector: warning: gui: preparing the drawing of {view.capture} failed: "
+                      f"{type(e).__name__}: {msg}", file=sys.stderr, flush=True)
+            self.result.emit(full)
         elif isinstance(event, Warned):
             self.warned.emit(f"{event.capture}: {event.text}")
         elif isinstance(event, RunEnded):

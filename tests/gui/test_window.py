@@ -315,17 +315,67 @@ def test_a_plugin_panel_and_a_broken_one(make_window, qtbot):
 
 
 def test_demo_recipe_inspects_good_then_notched_parts(make_window, qtbot, tmp_path):
-    """No arguments: the cell demo, every second simulated part notched (rendered: slow)."""
+    """No arguments: the cell demo, every second simulated part notched (rendered: slow).
+    Each part: the verdict first, then the rest of the screen, then the run's end; the second
+    part reuses the camera tiles and the 3D actors."""
     from inspector.gui.app import DEMO_RECIPE
 
     w = make_window(DEMO_RECIPE)
-    verdicts = []
+    events = []
+    w.verdict_shown.connect(lambda v: events.append(("verdict", v.capture, len(v.cameras))))
+    w.result_shown.connect(lambda v: events.append(("drawn", v.capture, len(v.cameras))))
+    w.run_finished.connect(lambda s: events.append(("finished",)))
+    verdicts, tiles, actors = [], [], []
     for _ in range(2):
+        events.clear()
         _inspect_with_key(qtbot, w)
         verdicts.append(w.current_result.verdict)
+        capture = w.current_result.capture
+        # The verdict comes before the camera images are made; all is drawn before the end.
+        assert events == [("verdict", capture, 0), ("drawn", capture, 16), ("finished",)]
+        assert not w.drawing
+        tiles.append(dict(w.cameras.tiles))
+        actors.append(dict(w.view3d.plotter.renderer.actors))
     assert verdicts == ["pass", "fail"]
     assert [r["verdict"] for r in w.history.rows] == ["pass", "fail"]
     assert "yield 50.0%" in w.history.yield_label.text()
+    assert all(tiles[1][n] is t for n, t in tiles[0].items()), "camera tiles updated in place"
+    assert all(actors[1][n] is a for n, a in actors[0].items()), "3D actors updated in place"
+
+
+def test_a_result_is_one_render_and_a_pass_hides_the_fail_markers(make_window, qtbot, sim_captures, tmp_path):
+    """A result costs one render of the 3D view (not one more for the widget's paint); a PASS
+    after a FAIL shows no defect marker or number; the actors stay the same."""
+    from inspector.cli import main
+
+    out = tmp_path / "cli"
+    assert main(["run", str(DEMO), "--capture", str(sim_captures["notched"]), "--out", str(out), "-q"]) == 1
+    assert main(["run", str(DEMO), "--capture", str(sim_captures["good"]), "--out", str(out), "-q"]) == 0
+    w = make_window(out=out)
+    p = w.view3d.plotter
+    renders = []
+    tag = p.ren_win.AddObserver("StartEvent", lambda obj, event: renders.append(1))
+    marks = ("defects", "defect-labels-points", "defect-labels-labels")
+    try:
+        seen = []
+        for name, verdict in (("notched", "fail"), ("good", "pass")):
+            qtbot.wait(200)
+            renders.clear()
+            with qtbot.waitSignal(w.result_shown, timeout=30_000):
+                assert w.open_result(out / name)
+                assert w.banner.state == verdict and w.drawing  # the verdict first, the 3D view after
+            qtbot.wait(300)  # the paint that follows the render
+            assert len(renders) == 1, f"{len(renders)} renders for one result"
+            a = p.renderer.actors
+            assert all(n in a and a[n].GetVisibility() == (verdict == "fail") for n in marks), verdict
+            assert a["bcps"].GetVisibility() and a["reference"].GetVisibility()
+            seen.append(dict(a))
+        assert seen[0].keys() == seen[1].keys() and all(seen[1][n] is x for n, x in seen[0].items())
+        shot = p.screenshot(return_img=True)
+        yellow = (shot[..., 0] > 200) & (shot[..., 1] > 200) & (shot[..., 2] < 100)
+        assert yellow.sum() < 5, "a defect marker of the FAIL is still drawn on the PASS"
+    finally:
+        p.ren_win.RemoveObserver(tag)
 
 
 def test_gui_without_a_display_is_one_line_exit_2(tmp_path):
