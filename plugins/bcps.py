@@ -18,6 +18,7 @@ from inspector.errors import StageError
 from inspector.kernels import bcps as bk
 from inspector.kernels.threads import map_threads
 from inspector.kernels.prior import SizePrior, fit_size_prior
+from inspector.kernels.robust import tukey_loss
 from inspector.model import Alignment, BcpsPoints
 from inspector.params import param
 from inspector.pipeline import InspectionContext
@@ -202,9 +203,7 @@ def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
 
 def _robust_loss(sel: BcpsPoints, cutoff_mm: float) -> float:
     """Mean Tukey loss (0..1) of a selection's deviations about their median."""
-    d = np.abs(sel.deviation - np.median(sel.deviation)) / cutoff_mm
-    u = np.minimum(d, 1.0)
-    return float(np.mean(1.0 - (1.0 - u * u) ** 3))
+    return float(np.mean(tukey_loss(sel.deviation - np.median(sel.deviation), cutoff_mm)))
 
 
 def _turn_search(ctx: InspectionContext, pose: np.ndarray, scan, p, cache: dict) -> np.ndarray | None:
@@ -257,12 +256,9 @@ def _turn_search(ctx: InspectionContext, pose: np.ndarray, scan, p, cache: dict)
 
 def _turn(axis: np.ndarray, centre: np.ndarray, angle_deg: float) -> np.ndarray:
     """(4, 4) turn of the reference frame by ``angle_deg`` about the line (axis, centre)."""
-    from scipy.spatial.transform import Rotation
+    from inspector.kernels.registration import turns_about_axis
 
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_rotvec(np.radians(angle_deg) * np.asarray(axis, float)).as_matrix()
-    T[:3, 3] = np.asarray(centre, float) - T[:3, :3] @ np.asarray(centre, float)
-    return T
+    return turns_about_axis(np.asarray(axis, float), np.asarray(centre, float), np.array([angle_deg]))[0]
 
 
 def _run(select):

@@ -54,10 +54,10 @@ from typing import Any
 import numpy as np
 import open3d as o3d
 
-from inspector.kernels.robust import tukey
+from inspector.kernels.robust import tukey, tukey_loss
 from inspector.model import Alignment, PoseConfidence
 
-__all__ = ["AxisScan", "align_reference", "pose_confidence", "refine_on_points", "scan_about_axis"]
+__all__ = ["AxisScan", "align_reference", "pose_confidence", "refine_on_points", "scan_about_axis", "turns_about_axis"]
 
 _REG = o3d.pipelines.registration
 
@@ -489,7 +489,7 @@ def _true_axis(ref: _Reference, axis: np.ndarray, centre: np.ndarray) -> tuple[n
     ``centre``. A keyway tilts a shaft's principal axis by 0.7 degree, which a turn by
     180 degrees turns into half a millimetre at its ends."""
     s, _ = ref.sample(_REF_SAMPLES, np.random.default_rng(2))
-    T = _turns(axis, centre, np.array([90.0]))[0]
+    T = turns_about_axis(axis, centre, np.array([90.0]))[0]
     W, dist, _ = _robust_fit(ref, _transform(T[None], s)[0], np.eye(4), floor_mm=1e-3 * ref.diag,
                              start_mm=0.05 * ref.diag, iterations=40, tol=1e-7 * ref.diag)
     if np.mean(dist <= 0.01 * ref.diag) < 0.5:
@@ -507,8 +507,9 @@ def _true_axis(ref: _Reference, axis: np.ndarray, centre: np.ndarray) -> tuple[n
     return a, c
 
 
-def _turns(axis: np.ndarray, centre: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
-    """Internal-frame rotations (K, 4, 4) by ``angles_deg`` about the line (axis, centre)."""
+def turns_about_axis(axis: np.ndarray, centre: np.ndarray, angles_deg: np.ndarray) -> np.ndarray:
+    """Rotations (K, 4, 4) by ``angles_deg`` about the line (axis (3,) unit, centre (3,) mm),
+    in the frame those are given in."""
     a = np.asarray(angles_deg, float).reshape(-1)
     T = np.tile(np.eye(4), (len(a), 1, 1))
     T[:, :3, :3] = _rodrigues(np.radians(a)[:, None] * axis[None])
@@ -523,7 +524,7 @@ def _axis_turns(ref: _Reference, angles_deg: tuple[float, ...]) -> np.ndarray:
     near = _near_axis(ref)
     if near is None or not len(angles_deg):
         return np.eye(4)[None]
-    return _turns(near[0], near[1], np.concatenate([[0.0], np.asarray(angles_deg, float)]))
+    return turns_about_axis(near[0], near[1], np.concatenate([[0.0], np.asarray(angles_deg, float)]))
 
 
 # --------------------------------------------------------------------------- turns about the axis
@@ -638,14 +639,13 @@ def _scan(ref: _Reference, points: np.ndarray, W: np.ndarray, cutoff_mm: float,
     # are among them.
     k = int(min(_SCAN_MAX_TURNS, 120 * np.ceil(360.0 / step / 120)))
     angles = np.arange(k) * (360.0 / k)
-    T = _turns(axis, centre, angles)
+    T = turns_about_axis(axis, centre, angles)
     # The reference's own symmetries depend on it alone: computed once per distance index.
     cache = _SELF_CACHE.setdefault(ref.index, {}) if ref.index is not None else {}
     if k not in cache:
         cache[k] = _self_moved(ref, axis, centre, T)
     x = points[:: max(1, len(points) // _SCAN_POINTS)]
-    u = np.minimum(ref.distance(_transform(T @ W, x)) / cutoff_mm, 1.0)
-    cost = np.mean(1.0 - (1.0 - u * u) ** 3, axis=1)
+    cost = np.mean(tukey_loss(ref.distance(_transform(T @ W, x)), cutoff_mm), axis=1)
     poke = None if hull is None else _poking(ref, hull[0], T @ W, hull[1])
     return AxisScan(axis=axis, centre=centre + ref.centre, angles_deg=angles, cost=cost, moved=cache[k],
                     cutoff_mm=float(cutoff_mm), radius_mm=radius, n_points=len(points), poke=poke)
@@ -669,8 +669,7 @@ def _best_start(ref: _Reference, points: np.ndarray, W: np.ndarray, *, floor_mm:
         if step.settled.all() and float(step.move.max()) < 1e-3 * floor_mm:
             break
     r = ref.distance(_transform(W, points))
-    u = np.minimum(r / (judge_mm if judge_mm is not None else floor_mm), 1.0)
-    cost = np.sum(1.0 - (1.0 - u * u) ** 3, axis=1)
+    cost = np.sum(tukey_loss(r, judge_mm if judge_mm is not None else floor_mm), axis=1)
     if hull is not None:
         poke = _poking(ref, hull[0], W, hull[1])
         cost = np.where(poke <= poke.min() + _POKE_TOLERANCE, cost, np.inf)
@@ -1017,7 +1016,7 @@ def refine_on_points(
         scan = _scan(ref, pts, W0, wide)
         near = _near_axis(ref)
         if scan is not None and near is not None:
-            extra = _turns(near[0], near[1], scan.angles_deg[scan.minima(_SCAN_STARTS)])
+            extra = turns_about_axis(near[0], near[1], scan.angles_deg[scan.minima(_SCAN_STARTS)])
             turns, judge = np.concatenate([turns, extra]), wide
     if len(turns) > 1:
         hull = None if hull_points is None else (_as_points("hull_points", hull_points), _positive("hull_mm", hull_mm))
