@@ -85,6 +85,11 @@ CYCLE_TARGET_S = 1.0
 MEMORY_TARGET_MB = 1500.0
 #: Open3D (``--open3d-voxel``) carving time over ours (``--carve-voxel``).
 CARVE_RATIO_TARGET = 10.0
+#: Issue 15: a new process (kernels cached) reaches its first verdict within this, s.
+COLD_START_TARGET_S = 3.0
+#: Issue 15: the kernels' first compile (an empty Numba cache; ``make setup`` does it once,
+#: with a progress line per kernel), s.
+FIRST_RUN_TARGET_S = 60.0
 #: Memory of one voxel of an Open3D ``VoxelGrid`` (hash map node: index, colour, key;
 #: measured about 92 bytes with Open3D 0.20), bytes.
 O3D_BYTES_PER_VOXEL = 100
@@ -429,7 +434,7 @@ def compare_carving(capture: Any, recipe: Any, *, carve_voxel: float, open3d_vox
 # --------------------------------------------------------------------------- report
 
 
-def _targets(cycles: dict[str, Any], carving: dict[str, Any] | None) -> dict[str, Any]:
+def _targets(cycles: dict[str, Any], carving: dict[str, Any] | None, startup: dict[str, Any] | None = None) -> dict[str, Any]:
     t: dict[str, Any] = {}
     cyc = cycles["stages"].get("cycle")
     t["cycle"] = {"target": f"median cycle <= {CYCLE_TARGET_S} s", "value_s": cyc["median"] if cyc else None,
@@ -437,6 +442,11 @@ def _targets(cycles: dict[str, Any], carving: dict[str, Any] | None) -> dict[str
     peak = cycles["memory"].get("peak_mb")
     t["memory"] = {"target": f"peak memory <= {MEMORY_TARGET_MB / 1000:g} GB", "value_mb": peak,
                    "met": (peak <= MEMORY_TARGET_MB) if peak is not None else None}
+    for key, what, target in (("cold_start", "verdict_s", COLD_START_TARGET_S), ("first_run", "seconds", FIRST_RUN_TARGET_S)):
+        got = (startup or {}).get(key) or {}
+        value = got.get(what) if (got.get("exit") == 0 or key == "cold_start") else None  # a verdict line is one
+        t[key] = {"target": f"{key.replace('_', ' ')} <= {target:g} s", "value_s": value,
+                  "met": (value <= target) if value is not None else None}
     ratio = carving.get("ratio") if carving else None
     t["carve_ratio"] = {"target": f"carve ratio >= {CARVE_RATIO_TARGET:g}", "value": ratio,
                         "met": (ratio >= CARVE_RATIO_TARGET) if ratio is not None else None}
@@ -460,6 +470,15 @@ def _print_report(doc: dict[str, Any]) -> None:
     if comp:
         print(f"  kernels compiled/loaded in a child process first: {comp['seconds']:.1f} s (exit {comp['exit']}; "
               "the first inspection after an install compiles them, once)")
+    st = doc.get("startup") or {}
+    if st.get("first_run"):
+        fr = st["first_run"]
+        print(f"  first run (empty Numba cache, `python -m inspector.precompile`): {fr['seconds']:.1f} s, "
+              f"{fr['kernels']} kernels compiled (exit {fr['exit']})")
+    if st.get("cold_start"):
+        cs = st["cold_start"]
+        shown = f"{cs['verdict_s']:.2f} s" if cs["verdict_s"] is not None else "no verdict"
+        print(f"  cold process (new `inspector run`, kernels cached): start -> verdict {shown}, exit after {cs['exit_s']:.2f} s")
     print(f"  warm-up run {cyc['warmup_s']:.3f} s (left out); {len(cyc['runs'])} timed run(s)")
     if cyc["stages"]:
         print()
@@ -537,6 +556,8 @@ def add_parser(subparsers: Any) -> None:
     b.add_argument("--size", type=int, default=1024, metavar="PX", help="simulated image width and height, px (default 1024)")
     b.add_argument("--mm-per-px", type=float, default=0.1, help="simulated pixel footprint at the rig centre, mm (default 0.1)")
     b.add_argument("--capture", metavar="DIR", help="use this capture folder instead of simulating one")
+    b.add_argument("--no-first-run", dest="first_run", action="store_false",
+                   help="skip the first-run compile time (a child compiling every kernel into an empty cache, about a minute)")
     b.add_argument("--runs", type=int, default=5, help="timed runs after the warm-up (default 5)")
     b.add_argument("--json", metavar="OUT.json", help="write every figure to this JSON file")
     b.add_argument("--no-open3d", action="store_true", help="skip the Open3D carving comparison")
@@ -555,8 +576,20 @@ def add_parser(subparsers: Any) -> None:
                    help="measure the operator window instead (needs a display; --recipe defaults to recipes/demo.toml "
                         "there): trigger to verdict shown against the headless cycle (median of --runs), event-loop "
                         "stall during inspections, memory growth over --gui-inspections (inspector.gui.bench)")
+    b.add_argument("--dask", action="store_true",
+                   help="measure archive re-inspection throughput instead, captures per minute: in this process, then "
+                        "on local Dask clusters (inspector run --workers N) of --dask-workers; --dask-captures copies of 4 "
+                        "simulated captures (--part, --cameras, --size, --mm-per-px, --seed)")
+    b.add_argument("--dask-captures", type=int, default=20, metavar="N", help="with --dask: captures in the archive (default 20)")
+    b.add_argument("--dask-workers", type=int, nargs="+", default=[1, 2], metavar="N",
+                   help="with --dask: the local clusters' worker counts (default 1 2)")
     b.add_argument("--gui-inspections", type=int, default=200, metavar="N",
                    help="with --gui: inspections in one window; memory is sampled after 20 and after N (default 200)")
+    b.add_argument("--opcua", action="store_true",
+                   help="measure `inspector serve` instead: trigger-to-verdict latency seen by an OPC UA client (median, "
+                        "p99) against the headless cycle of the same parts (--recipe defaults to recipes/demo.toml "
+                        "there; inspector_drivers.opcua.bench)")
+    b.add_argument("--opcua-parts", type=int, default=100, metavar="N", help="with --opcua: timed parts (default 100)")
 
 
 def _default_reference(recipe_path: str, part: str) -> str | None:
@@ -596,6 +629,12 @@ def run(args: argparse.Namespace) -> int:
         from inspector.gui.bench import run_gui_bench
 
         return run_gui_bench(args)
+    if getattr(args, "opcua", False):  # asyncua is imported there, never by this module
+        from inspector_drivers.opcua.bench import run_opcua_bench
+
+        return run_opcua_bench(args)
+    if getattr(args, "dask", False):
+        return dask_throughput(args)
     from inspector.session import Session
 
     _check(args)
@@ -628,6 +667,15 @@ def run(args: argparse.Namespace) -> int:
                     "width": cams[0].width if cams else None, "height": cams[0].height if cams else None}
         say("Compiling the kernels in a child process (once per install; seconds when cached) ...")
         compiled = compile_kernels(args.recipe, recipe.reference, folder, work / "compile")
+        from inspector.precompile import cold_start, first_run
+
+        startup: dict[str, Any] = {}
+        if args.first_run:
+            say("First run: compiling every kernel into an empty Numba cache in a child process (about a minute) ...")
+            startup["first_run"] = first_run(work / "first-run")
+        say("Cold process: a new `inspector run` on the capture ...")
+        startup["cold_start"] = cold_start(args.recipe, folder, work / "cold",
+                                           reference=args.reference or _default_reference(args.recipe, args.part))
         say(f"Inspecting {folder.name} {1 + args.runs} times (first = warm-up) with {recipe.name} ...")
         cycles = bench_cycles(recipe, ref, pm, folder, work / "results", args.runs, progress=say)
         failed = [r for r in [cycles["warmup"], *cycles["runs"]] if r["verdict"] == "error"]
@@ -650,10 +698,11 @@ def run(args: argparse.Namespace) -> int:
         },
         "machine": machine,
         "compile": compiled,
+        "startup": startup,
         "cycles": cycles,
         "carving": carving,
     }
-    doc["targets"] = _targets(cycles, carving)
+    doc["targets"] = _targets(cycles, carving, startup)
     verdicts = [r["verdict"] for r in cycles["runs"]]
     doc["verdicts"] = verdicts
     if not args.quiet:
@@ -674,6 +723,116 @@ def run(args: argparse.Namespace) -> int:
         say(f"\n  figures written to {p}")
     measured = [t["met"] for t in doc["targets"].values() if t["met"] is not None]
     return 0 if all(measured) else 1
+
+
+def dask_throughput(args: argparse.Namespace) -> int:
+    """``inspector bench --dask`` (issue 17): archive re-inspection throughput, captures per
+    minute, in this process (``inspector run``), then on a local Dask cluster of each
+    ``--dask-workers`` count (``inspector run --workers N``, one thread per worker).
+
+    The archive holds ``--dask-captures`` copies of 4 simulated captures. Each cluster is
+    started, and each of its workers inspects one capture, before the clock starts (imports,
+    the kernels' cache, the reference's index: once per worker process): the figures are the
+    steady rate of a running cluster, result folders and history rows written. Also measured,
+    for a cluster of N machines: the client's own time per capture (its result folder and
+    history row, :func:`inspector.distributed_run.record`), and the bytes a worker reads
+    (the capture folder) and sends back (the pickled result). Exit 0, or 3 if a capture failed.
+    """
+    import pickle
+    import shutil
+
+    from inspector.distributed_run import connect, inspect_folder, record, run_on_cluster, worker_setup
+    from inspector.errors import RecipeError
+    from inspector.runner import Outcome
+    from inspector.session import Session, Source
+
+    _check(args)
+    if args.dask_captures < 1 or any(w < 1 for w in args.dask_workers):
+        raise RecipeError("bench --dask-captures and --dask-workers: expected numbers >= 1")
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
+    ref = args.reference or _default_reference(args.recipe, args.part)
+    session = Session.open(args.recipe, ".", reference=ref, pm=getattr(args, "plugin_manager", None))
+    doc: dict[str, Any] = {"machine": _machine(), "captures": args.dask_captures, "recipe": str(args.recipe),
+                           "capture": {"part": args.part, "cameras": args.cameras, "size": args.size, "mm_per_px": args.mm_per_px},
+                           "runs": []}
+    with tempfile.TemporaryDirectory(prefix="inspector-bench-dask-") as tmp:
+        work = Path(args.keep) if args.keep else Path(tmp)
+        distinct = []
+        for i in range(min(4, args.dask_captures)):
+            say(f"Simulating capture {i + 1} of {min(4, args.dask_captures)} ...")
+            table = {"part": args.part, "seed": args.seed + i, "cameras": args.cameras, "width": args.size,
+                     "height": args.size, "mm_per_px": args.mm_per_px}
+            distinct.append(simulate_capture(work / "src" / f"{args.part}-s{args.seed + i:04d}", table))
+        archive = work / "archive"
+        for i in range(args.dask_captures):
+            shutil.copytree(distinct[i % len(distinct)], archive / f"c{i:04d}")
+        doc["capture"]["bytes"] = sum(f.stat().st_size for f in distinct[0].rglob("*") if f.is_file())
+        compile_kernels(args.recipe, session.recipe.reference, distinct[0], work / "compile")
+        setup = worker_setup(session)
+        result, _ = inspect_folder(setup, str(distinct[0]))  # warm, in this process
+        doc["result_bytes"] = len(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
+        rec = []
+        for i in range(5):
+            t0 = time.perf_counter()
+            record(Outcome(result, None), session.recipe, session.pm, work / "out-record")
+            rec.append(time.perf_counter() - t0)
+        doc["client_record_s"] = statistics.median(rec)
+        failed = 0
+        for workers in [0, *args.dask_workers]:
+            label = "in this process" if not workers else f"on a local cluster of {workers} worker{'s' if workers > 1 else ''}"
+            run_session = Session(session.recipe, session.reference, session.pm, work / f"out-{workers}")
+            row: dict[str, Any] = {"workers": workers, "label": label}
+            client: Any = None
+            cluster: Any = None
+            try:
+                if workers:
+                    say(f"Starting a local Dask cluster of {workers} worker process(es) ...")
+                    t0 = time.perf_counter()
+                    client, cluster = connect(None, workers)
+                    row["start_s"] = time.perf_counter() - t0
+                    t0 = time.perf_counter()
+                    client.run(inspect_folder, setup, str(distinct[0]))  # every worker, once
+                    row["warmup_s"] = time.perf_counter() - t0
+                say(f"Inspecting {args.dask_captures} captures {label} ...")
+                row["loadavg_before"] = os.getloadavg()[0]  # a shared machine: other jobs' load beside each figure
+                # CPU seconds (this process, and each worker's): what a capture costs whatever else the machine runs.
+                cpu0 = client.run(time.process_time) if workers else {}
+                t0, c0 = time.perf_counter(), time.process_time()
+                if workers:
+                    summary = run_on_cluster(run_session, [str(archive)], client=client)
+                else:
+                    summary = run_session.run(Source(captures=(str(archive),)))
+                row["seconds"] = time.perf_counter() - t0
+                n = max(summary.inspected, 1)
+                row["cpu_s_per_capture"] = (time.process_time() - c0) / n  # in this process (the client's, for a cluster)
+                if workers:
+                    cpu1 = client.run(time.process_time)
+                    row["worker_cpu_s_per_capture"] = sum(cpu1[a] - cpu0[a] for a in cpu1 if a in cpu0) / n
+                row["loadavg_after"] = os.getloadavg()[0]
+            finally:
+                if client is not None:
+                    client.close()
+                if cluster is not None:
+                    cluster.close()
+            row["captures_per_min"] = 60.0 * summary.inspected / row["seconds"]
+            row["counts"] = dict(summary.counts)
+            failed += summary.counts.get("error", 0)
+            doc["runs"].append(row)
+            cpu = row.get("worker_cpu_s_per_capture", row["cpu_s_per_capture"])
+            say(f"  {label}: {row['captures_per_min']:.1f} captures/min ({row['seconds'] / summary.inspected:.2f} s per capture; "
+                f"CPU {cpu:.2f} s per capture" + (f", client {row['cpu_s_per_capture']:.3f} s" if workers else "") + ")"
+                + (f"; cluster start {row['start_s']:.1f} s and warm-up {row['warmup_s']:.1f} s not counted" if workers else "")
+                + f" (load {row['loadavg_before']:.1f} -> {row['loadavg_after']:.1f})")
+    say(f"  client, per capture: result folder and history row {1000 * doc['client_record_s']:.0f} ms (one client: at most "
+        f"{60 / doc['client_record_s']:.0f} captures/min); a worker reads {doc['capture']['bytes'] / 1e6:.1f} MB per capture "
+        f"and sends back {doc['result_bytes'] / 1e6:.2f} MB")
+    if args.json:
+        p = Path(args.json)
+        if p.parent != Path(""):
+            p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n", encoding="utf-8")
+        say(f"  figures written to {p}")
+    return 3 if failed else 0
 
 
 def acquisition_latency(n: int, triggers: int, progress=lambda s: None) -> dict[str, Any]:

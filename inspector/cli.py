@@ -69,9 +69,12 @@ def _watch_params(args: argparse.Namespace) -> dict[str, Any] | None:
 
 
 def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, reference: str | None, quiet: bool,
-               watch: dict[str, Any] | None = None, csv: bool = False, pm: PluginManager | None = None) -> int:
+               watch: dict[str, Any] | None = None, csv: bool = False, pm: PluginManager | None = None,
+               cluster: dict[str, Any] | None = None) -> int:
     """``inspector run``: a :class:`~inspector.session.Session` whose events are printed;
-    returns the exit status (CONTRACT). ``pm``: the plugin manager (default: a new one)."""
+    returns the exit status (CONTRACT). ``pm``: the plugin manager (default: a new one).
+    ``cluster``: ``{"scheduler": ADDRESS}`` or ``{"workers": N}``: the captures are inspected on
+    a Dask cluster (:mod:`inspector.distributed_run`), with the same results and output."""
     from inspector.outputs import one_line
     from inspector.session import Inspected, RunStarted, Session, Source, Warned
 
@@ -94,7 +97,12 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
 
     session.subscribe(show)
     try:
-        summary = session.run(Source(captures=tuple(captures or ()), watch=watch))
+        if cluster is None:
+            summary = session.run(Source(captures=tuple(captures or ()), watch=watch))
+        else:
+            from inspector.distributed_run import run_on_cluster
+
+            summary = run_on_cluster(session, captures or (), progress=not quiet, **cluster)
     finally:
         session.close()
     if summary.inbox is not None and summary.ended == "interrupted" and not quiet:
@@ -112,7 +120,7 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
 
 
 def _add_run(sub: argparse._SubParsersAction[Any]) -> None:
-    r = sub.add_parser("run", help="inspect captures with a recipe (batch, one process)")
+    r = sub.add_parser("run", help="inspect captures with a recipe (batch: in this process, or on a Dask cluster)")
     r.add_argument("recipe", help="recipe TOML file")
     src = r.add_mutually_exclusive_group()
     src.add_argument("--capture", nargs="+", metavar="DIR", help="capture folders, or folders of capture folders (default: the recipe's driver)")
@@ -125,11 +133,32 @@ def _add_run(sub: argparse._SubParsersAction[Any]) -> None:
     r.add_argument("--csv", action="store_true",
                    help="also write bcps_points.csv (per-point deviations) and regions.csv (per-region summary) "
                         "in each result folder (as the recipe's [outputs] csv = true)")
+    r.add_argument("--scheduler", metavar="ADDRESS",
+                   help="with --capture: inspect on the workers of this Dask scheduler (e.g. tcp://host:8786); "
+                        "they must see the capture folders by the same paths. Results are written here, as a local run's")
+    r.add_argument("--workers", type=int, metavar="N",
+                   help="with --capture: inspect on a local Dask cluster of N worker processes")
+
+
+def _cluster_params(args: argparse.Namespace) -> dict[str, Any] | None:
+    """Where ``--scheduler`` or ``--workers`` send the inspections (None: this process)."""
+    if args.scheduler is None and args.workers is None:
+        return None
+    if args.scheduler is not None and args.workers is not None:
+        raise RecipeError("--scheduler and --workers: give one, a running cluster or a local one of N workers")
+    flag = "--scheduler" if args.scheduler is not None else "--workers"
+    if not args.capture:
+        raise RecipeError(f"{flag}: only with --capture (a batch of capture folders)")
+    if args.workers is not None and args.workers < 1:
+        raise RecipeError(f"--workers: expected a number >= 1, got {args.workers}")
+    if args.scheduler is not None and not args.scheduler.strip():
+        raise RecipeError("--scheduler: expected an address such as tcp://host:8786")
+    return {"scheduler": args.scheduler} if args.scheduler is not None else {"workers": args.workers}
 
 
 def _run_command(args: argparse.Namespace) -> int:
     return run_recipe(args.recipe, args.capture, args.out, args.reference, args.quiet,
-                      watch=_watch_params(args), csv=args.csv, pm=args.plugin_manager)
+                      watch=_watch_params(args), csv=args.csv, pm=args.plugin_manager, cluster=_cluster_params(args))
 
 
 # -- plugins / plugin new / recipe check ---------------------------------------------------
@@ -366,6 +395,9 @@ def build_parser(pm: PluginManager | None = None) -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from inspector.manager import BLOCK_ENV
+    from inspector.startup import defer_open3d_plotly
+
+    defer_open3d_plotly()  # a new process reaches its first verdict sooner (see inspector.startup)
 
     argv = list(sys.argv[1:] if argv is None else argv)
     try:

@@ -56,6 +56,7 @@ __all__ = [
     "make_specs",
     "run_task",
     "execute",
+    "start_client",
     "write_plots",
     "write_summary",
     "ratio_ranges",
@@ -557,16 +558,21 @@ def execute(
     fn: Callable[[Mapping[str, Any]], list[dict[str, Any]]] = run_task,
     on_rows: Callable[[list[dict[str, Any]]], None] | None = None,
     progress: bool = True,
+    label: Callable[[Mapping[str, Any]], str] | None = None,
+    errors: Callable[[Mapping[str, Any], str], list[dict[str, Any]]] | None = None,
+    desc: str = "experiment",
 ) -> list[dict[str, Any]]:
     """Submit one task per spec to ``client``; gather rows as they complete.
 
-    A task whose future fails (worker killed, unpicklable result...) gives error rows; the
-    others are unaffected.
+    A task whose future fails (worker killed, unpicklable result...) gives error rows
+    (``errors(spec, message)``, default :func:`error_rows`); the others are unaffected.
+    ``label(spec)`` names a finished task beside the progress bar ``desc``
+    (``inspector feasibility`` runs its simulations through here too).
     """
     from distributed import as_completed
 
     futures = {client.submit(fn, dict(s), pure=False): s for s in specs}
-    bar = _progress_bar(len(futures), progress)
+    bar = _progress_bar(len(futures), progress, desc)
     rows: list[dict[str, Any]] = []
     try:
         for fut in as_completed(futures):
@@ -574,14 +580,15 @@ def execute(
             try:
                 got = fut.result()
             except Exception as exc:  # noqa: BLE001 - one task never loses the others
-                got = error_rows(spec, f"task failed: {type(exc).__name__}: {' '.join(str(exc).split())}")
+                got = (errors or error_rows)(spec, f"task failed: {type(exc).__name__}: {' '.join(str(exc).split())}")
             finally:
                 fut.release()
             rows += got
             if on_rows is not None:
                 on_rows(got)
             bad = sum(r["status"] != "ok" for r in got)
-            bar.update(f"{spec['case']} {spec['part']} {spec['variable']}={spec['value']} o{spec['orientation']}" + (" ERROR" if bad else ""))
+            what = label(spec) if label is not None else f"{spec['case']} {spec['part']} {spec['variable']}={spec['value']} o{spec['orientation']}"
+            bar.update(what + (" ERROR" if bad else ""))
     finally:
         bar.close()
         for f in futures:
@@ -593,13 +600,13 @@ def execute(
 class _progress_bar:  # noqa: N801 - used like a function
     """tqdm on stderr, or one plain line per task when tqdm is missing."""
 
-    def __init__(self, total: int, enabled: bool) -> None:
+    def __init__(self, total: int, enabled: bool, desc: str = "experiment") -> None:
         self.total, self.n, self.enabled, self.bar = total, 0, enabled, None
         if enabled:
             try:
                 from tqdm import tqdm
 
-                self.bar = tqdm(total=total, file=sys.stderr, unit="run", desc="experiment", dynamic_ncols=True)
+                self.bar = tqdm(total=total, file=sys.stderr, unit="run", desc=desc, dynamic_ncols=True)
             except ImportError:
                 self.bar = None
 
@@ -618,8 +625,9 @@ class _progress_bar:  # noqa: N801 - used like a function
             self.bar.close()
 
 
-def _client(scheduler: str | None, workers: int) -> tuple[Any, Any]:
-    """(client, cluster-or-None): connect to ``scheduler`` or start a LocalCluster."""
+def start_client(scheduler: str | None, workers: int, command: str = "experiment") -> tuple[Any, Any]:
+    """(client, cluster-or-None): connect to ``scheduler`` or start a LocalCluster of
+    ``workers`` processes; an address that does not answer is an error naming ``command``."""
     from distributed import Client, LocalCluster
 
     if scheduler:
@@ -628,7 +636,7 @@ def _client(scheduler: str | None, workers: int) -> tuple[Any, Any]:
         try:
             return Client(scheduler, timeout="30s"), None
         except (OSError, TimeoutError) as e:
-            raise InspectorError(f"experiment --scheduler {scheduler}: cannot connect ({' '.join(str(e).split())})") from None
+            raise InspectorError(f"{command} --scheduler {scheduler}: cannot connect ({' '.join(str(e).split())})") from None
     import logging
 
     # ":0": any free port for the scheduler's HTTP server (8787 may be taken on a shared machine).
@@ -964,7 +972,7 @@ def run(args: argparse.Namespace) -> int:
     where = args.scheduler or f"a local cluster of {args.workers} worker process(es)"
     print(f"experiment: {len(specs)} runs ({', '.join(c.stem for c in cases)}; preset {preset}) on {where}", flush=True)
     try:
-        client, cluster = _client(args.scheduler, args.workers)
+        client, cluster = start_client(args.scheduler, args.workers)
         rows = execute(specs, client, on_rows=sink.add, progress=not args.no_progress)
     finally:
         sink.close()

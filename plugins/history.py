@@ -1,43 +1,77 @@
-"""Built-in plugin ``history``: every inspection recorded in ``OUTDIR/history.sqlite``.
+"""Built-in plugin ``history``: every inspection recorded in ``OUTDIR/history.sqlite``, and
+in the plant's PostgreSQL database when one is configured.
 
 The traceability record of a production line: one row per inspection (a capture inspected
 twice has two rows: nothing is overwritten), with the part's id and trigger time from
-``capture.json``, the verdict, the deviation summary, the defects and the timings. It is an
-``inspector_on_result`` hook like an integrator's PLC or MES publisher, registered through
-the same entry-point group; ``inspector history OUTDIR`` reads it.
+``capture.json``, the verdict, the deviation summary, the defects, the timings, the cell
+that inspected it and a unique ``uid``. It is an ``inspector_on_result`` hook like an
+integrator's PLC or MES publisher, registered through the same entry-point group;
+``inspector history OUTDIR`` reads the cell's file, ``inspector history --url URL`` the plant's.
 
-The database is SQLite (WAL journal, so a reader never blocks the runner); the schema is
-:data:`SCHEMA`. A history that cannot be written (read-only folder, a corrupt file) costs
+The cell's database is SQLite (WAL journal, so a reader never blocks the runner); the schema
+is :data:`SCHEMA`. A history that cannot be written (read-only folder, a corrupt file) costs
 only the history row: the result folder is already written, and the runner says so in one
 line.
+
+The plant database (``[plugins.history] url``, else ``$INSPECTOR_HISTORY_URL``; the
+connection is ``plugins/history_plant.py``): every row is first committed to the cell's file
+together with an entry of its ``spool`` table, then the spool is sent, oldest first, each
+batch in one PostgreSQL transaction, its entries deleted only after that commit. A server
+that is down costs one warning line (its URL without the password) and the rows wait in the
+spool until a later record, a run's start or end, or ``inspector history OUTDIR --send``
+reaches it. A row is inserted with ``ON CONFLICT (uid) DO NOTHING``: sent twice (a crash
+between the server's commit and the spool's delete), it is stored once.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
+import socket
 import sqlite3
+import sys
+import threading
+import uuid
+from collections.abc import Mapping
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from inspector import hookimpl
 from inspector.errors import InputError
 from inspector.model import InspectionResult
-from inspector.registry import CommandRegistry
+from inspector.params import param
+from inspector.registry import CommandRegistry, SettingsRegistry
+from inspector_plugins.history_plant import COLUMNS, DEFECT_COLUMNS, PlantDatabase, PlantUnavailable, check_url, mask_url
 
-__all__ = ["HISTORY_FILE", "SCHEMA", "record", "recorded", "read_history", "read_table", "tally", "draw_history", "plot_history"]
+if TYPE_CHECKING:
+    from inspector.recipe import Recipe
+    from inspector.session import RunSummary
+
+__all__ = ["HISTORY_FILE", "SCHEMA", "URL_ENV", "CELL_ENV", "HistorySettings", "record", "recorded", "read_history",
+           "read_plant", "read_table", "spooled", "flush_spool", "tally", "draw_history", "plot_history"]
 
 #: The history database, in the run's OUTDIR (beside the result folders).
 HISTORY_FILE = "history.sqlite"
 
+#: The plant database's URL when the recipe gives none (``[plugins.history] url``).
+URL_ENV = "INSPECTOR_HISTORY_URL"
+#: The cell's name when the recipe gives none (``[plugins.history] cell``); else the host name.
+CELL_ENV = "INSPECTOR_HISTORY_CELL"
+
 #: Version 1. ``inspected_at`` is UTC ISO-8601; deviations in mm; ``metadata`` is capture.json
 #: (minus polarity) as JSON; ``extras`` what the stages put in ``context.extras`` (JSON, the
-#: result's ``extras``; added compatibly: :func:`record` adds the column to an older file).
+#: result's ``extras``); ``cell`` the cell that inspected (recipe, ``$INSPECTOR_HISTORY_CELL``
+#: or the host name); ``uid`` a UUID given when the row is recorded (what makes a row sent to
+#: the plant database twice one row there). ``extras``, ``cell`` and ``uid`` were added
+#: compatibly: :func:`record` adds them to an older file (its older rows have NULL there).
 #: The deviation and tolerance columns come from the evaluate stage's typed summary
-#: (:class:`inspector.model.EvaluationSummary`), whichever evaluate variant ran.
+#: (:class:`inspector.model.EvaluationSummary`), whichever evaluate variant ran. ``spool``
+#: lists the rows not yet in the plant database (empty without one), oldest first.
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS inspections (
     id INTEGER PRIMARY KEY,
@@ -59,7 +93,9 @@ CREATE TABLE IF NOT EXISTS inspections (
     total_s REAL,
     result_dir TEXT,
     metadata TEXT,
-    extras TEXT
+    extras TEXT,
+    cell TEXT,
+    uid TEXT
 );
 CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture);
 CREATE INDEX IF NOT EXISTS inspections_part ON inspections (part_id);
@@ -71,8 +107,14 @@ CREATE TABLE IF NOT EXISTS defects (
     x REAL, y REAL, z REAL,
     region TEXT
 );
+CREATE TABLE IF NOT EXISTS spool (
+    inspection_id INTEGER PRIMARY KEY REFERENCES inspections (id)
+);
 PRAGMA user_version = 1;
 """
+
+#: Columns added since the first files, with their type: added to an older file when written.
+_ADDED = (("extras", "TEXT"), ("cell", "TEXT"), ("uid", "TEXT"))
 
 
 def _connect(path: Path) -> sqlite3.Connection:
@@ -97,11 +139,47 @@ def _finite(value: Any) -> Any:
     return value
 
 
-def record(result: InspectionResult, outdir: Path, *, now: datetime | None = None) -> int:
+def default_cell() -> str:
+    """This cell's name when the recipe gives none: ``$INSPECTOR_HISTORY_CELL``, else the host name."""
+    return os.environ.get(CELL_ENV, "").strip() or socket.gethostname() or "cell"
+
+
+def _migrate(con: sqlite3.Connection) -> None:
+    """Create the tables, and add the columns an older file lacks (nothing written when the
+    file is current: the unique index on ``uid`` is made last)."""
+    if {"inspections", "defects", "spool", "inspections_uid"} <= {r[0] for r in con.execute("SELECT name FROM sqlite_master")}:
+        return
+    con.executescript(SCHEMA)
+    con.execute("BEGIN IMMEDIATE")  # two writers migrating one file: the second finds the columns there
+    have = {r[1] for r in con.execute("PRAGMA table_info(inspections)")}
+    for column, kind in _ADDED:
+        if column not in have:  # a file from before
+            con.execute(f"ALTER TABLE inspections ADD COLUMN {column} {kind}")
+    con.execute("CREATE UNIQUE INDEX IF NOT EXISTS inspections_uid ON inspections (uid)")
+    con.commit()
+
+
+def record(result: InspectionResult, outdir: Path, *, now: datetime | None = None, cell: str | None = None,
+           spool: bool = False, con: sqlite3.Connection | None = None) -> int:
     """Append one inspection to ``outdir/history.sqlite``; returns its row id.
 
-    ``outdir`` is the run's result folder (the parent of the capture's own folder).
+    ``outdir`` is the run's result folder (the parent of the capture's own folder). ``cell``
+    names the cell (default :func:`default_cell`). ``spool``: also list the row in the
+    ``spool`` table, in the same transaction, for the plant database (:func:`flush_spool`).
+    ``con``: an open connection to that file to use (committed, left open).
     """
+    if con is not None:
+        return _record(con, result, now=now, cell=cell, spool=spool)
+    own = _connect(Path(outdir) / HISTORY_FILE)
+    try:
+        return _record(own, result, now=now, cell=cell, spool=spool)
+    finally:
+        own.close()
+
+
+def _record(con: sqlite3.Connection, result: InspectionResult, *, now: datetime | None, cell: str | None,
+            spool: bool) -> int:
+    """:func:`record` on an open connection (committed)."""
     meta = dict(result.metadata or {})
     summary = result.summary  # the evaluate stage's contract; None: no evaluate stage, or an error
     dev = summary.deviation_mm if summary is not None else None
@@ -127,28 +205,99 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
         result.capture,
         json.dumps(_finite(meta), default=str, sort_keys=True, allow_nan=False),
         json.dumps(_finite(dict(result.extras)), default=str, sort_keys=True, allow_nan=False) if result.extras else None,
+        cell if cell is not None else default_cell(),
+        str(uuid.uuid4()),
     )
-    con = _connect(outdir / HISTORY_FILE)
-    try:
-        con.executescript(SCHEMA)
-        if "extras" not in {r[1] for r in con.execute("PRAGMA table_info(inspections)")}:  # a file from before
-            con.execute("ALTER TABLE inspections ADD COLUMN extras TEXT")
-        cur = con.execute(
-            "INSERT INTO inspections (inspected_at, capture, part_id, triggered_at, recipe, verdict, error, n_points,"
-            " deviation_mean_mm, deviation_min_mm, deviation_max_mm, n_defects, worst_mm, tolerance_lower_mm,"
-            " tolerance_upper_mm, total_s, result_dir, metadata, extras)"
-            " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-            row,
-        )
-        rid = int(cur.lastrowid)
-        con.executemany(
-            "INSERT INTO defects (inspection_id, kind, n_points, worst_mm, x, y, z, region) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-            [(rid, d.kind, d.n_points, d.worst_mm, *d.position, d.region) for d in result.defects],
-        )
-        con.commit()
-    finally:
-        con.close()
+    _migrate(con)
+    cur = con.execute(f"INSERT INTO inspections ({', '.join(COLUMNS)}) VALUES ({', '.join('?' * len(COLUMNS))})", row)
+    rid = int(cur.lastrowid or 0)
+    con.executemany(
+        "INSERT INTO defects (inspection_id, kind, n_points, worst_mm, x, y, z, region) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+        [(rid, d.kind, d.n_points, d.worst_mm, *d.position, d.region) for d in result.defects],
+    )
+    if spool:
+        con.execute("INSERT INTO spool (inspection_id) VALUES (?)", (rid,))
+    con.commit()
     return rid
+
+
+def spooled(outdir: Path) -> int:
+    """How many of ``outdir``'s inspections wait in its spool for the plant database (0 when
+    there is no history, or no spool)."""
+    path = Path(outdir) / HISTORY_FILE
+    if not path.is_file():
+        return 0
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+        try:
+            if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'spool'").fetchone() is None:
+                return 0
+            return int(con.execute("SELECT COUNT(*) FROM spool").fetchone()[0])
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return 0
+
+
+#: Spooled rows sent per PostgreSQL transaction.
+SEND_BATCH = 200
+
+
+def _spooled_batch(con: sqlite3.Connection, limit: int) -> list[tuple[int, dict[str, Any], list[dict[str, Any]]]]:
+    """The oldest ``limit`` spooled rows: (local id, row, defects)."""
+    cur = con.cursor()
+    cur.row_factory = sqlite3.Row
+    rows = [dict(r) for r in cur.execute(
+        f"SELECT i.id, {', '.join('i.' + c for c in COLUMNS)} FROM spool s JOIN inspections i ON i.id = s.inspection_id"
+        " ORDER BY s.inspection_id LIMIT ?", (limit,))]
+    missing = [r for r in rows if not r["uid"]]  # cannot happen with record(); a uid is what makes a send idempotent
+    for r in missing:
+        r["uid"] = str(uuid.uuid4())
+        con.execute("UPDATE inspections SET uid = ? WHERE id = ?", (r["uid"], r["id"]))
+    if missing:
+        con.commit()
+    defects: dict[int, list[dict[str, Any]]] = {}
+    if rows:
+        ids = [r["id"] for r in rows]
+        q = (f"SELECT inspection_id, {', '.join(DEFECT_COLUMNS)} FROM defects"
+             f" WHERE inspection_id IN ({', '.join('?' * len(ids))}) ORDER BY rowid")
+        for d in cur.execute(q, ids):
+            defects.setdefault(d["inspection_id"], []).append(dict(d))
+    out = []
+    for r in rows:
+        rid = r.pop("id")
+        out.append((rid, r, defects.get(rid, [])))
+    return out
+
+
+def flush_spool(outdir: Path, plant: PlantDatabase, *, con: sqlite3.Connection | None = None) -> int:
+    """Send ``outdir``'s spooled rows to ``plant``, oldest first, :data:`SEND_BATCH` per
+    transaction; each batch leaves the spool only after the server committed it. Returns
+    how many rows were sent. Raises :class:`PlantUnavailable` (what was not sent stays).
+    ``con``: an open connection to the history to use (no transaction is held while the
+    server is waited for)."""
+    path = Path(outdir) / HISTORY_FILE
+    own = con is None
+    if con is None:
+        if not path.is_file():
+            return 0
+        con = _connect(path)
+    try:
+        if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'spool'").fetchone() is None:
+            return 0
+        sent = 0
+        while True:
+            batch = _spooled_batch(con, SEND_BATCH)
+            if not batch:
+                return sent
+            plant.insert([(row, defects) for _, row, defects in batch])
+            ids = [rid for rid, _, _ in batch]
+            con.execute(f"DELETE FROM spool WHERE inspection_id IN ({', '.join('?' * len(ids))})", ids)
+            con.commit()
+            sent += len(batch)
+    finally:
+        if own:
+            con.close()
 
 
 def recorded(outdir: Path, capture: str) -> bool | None:
@@ -170,21 +319,23 @@ def recorded(outdir: Path, capture: str) -> bool | None:
         return None
 
 
-def read_history(outdir: Path, *, last: int | None = None) -> list[dict[str, Any]]:
-    """The recorded inspections of ``outdir``, oldest first (the ``last`` ones only).
+def read_history(outdir: Path, *, last: int | None = None, cell: str | None = None) -> list[dict[str, Any]]:
+    """The recorded inspections of ``outdir``, oldest first (the ``last`` ones only; those of
+    ``cell`` only).
 
     Raises InputError naming the file when there is no history or it cannot be read.
     """
     path = Path(outdir) / HISTORY_FILE
     if not path.is_file():
         raise InputError(f"{path}: no history (inspector run writes it beside the result folders)")
-    return read_table(path, "inspections", last=last) or []
+    return read_table(path, "inspections", last=last, where=None if cell is None else {"cell": cell}) or []
 
 
 def read_table(path: Path, table: str, columns: tuple[str, ...] | None = None, *,
-               last: int | None = None) -> list[dict[str, Any]] | None:
+               last: int | None = None, where: Mapping[str, Any] | None = None) -> list[dict[str, Any]] | None:
     """Rows of ``table`` in the SQLite file ``path`` (read-only), oldest first, the ``last``
-    ones only; None when the file has no such table. InputError naming the file when it
+    ones only, those whose columns equal ``where``'s values only (a column the file lacks:
+    no row); None when the file has no such table. InputError naming the file when it
     cannot be read. Shared by the history and the audit trail (``inspector.roles``)."""
     cols = ", ".join(columns) if columns else "*"
     try:
@@ -193,28 +344,202 @@ def read_table(path: Path, table: str, columns: tuple[str, ...] | None = None, *
             con.row_factory = sqlite3.Row
             if con.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = ?", (table,)).fetchone() is None:
                 return None
-            q = f"SELECT {cols} FROM {table} ORDER BY id"
+            cond, params = "", []
+            if where:
+                have = {r[1] for r in con.execute(f"PRAGMA table_info({table})")}
+                if not set(where) <= have:
+                    return []
+                cond = " WHERE " + " AND ".join(f"{k} = ?" for k in where)
+                params = list(where.values())
+            q = f"SELECT {cols} FROM {table}{cond} ORDER BY id"
             if last is not None:
-                q = f"SELECT * FROM (SELECT {cols} FROM {table} ORDER BY id DESC LIMIT {int(last)}) ORDER BY id"
-            return [dict(r) for r in con.execute(q)]
+                q = f"SELECT * FROM (SELECT {cols} FROM {table}{cond} ORDER BY id DESC LIMIT {int(last)}) ORDER BY id"
+            return [dict(r) for r in con.execute(q, params)]
         finally:
             con.close()
     except sqlite3.Error as e:
         raise InputError(f"{path}: cannot be read ({e})") from None
 
 
+def read_plant(url: str, *, last: int | None = None, cell: str | None = None,
+               connect_timeout_s: int = 10) -> list[dict[str, Any]]:
+    """The plant database's inspections (every cell's, or ``cell``'s), oldest first by
+    ``inspected_at``, the ``last`` ones only: the same keys as :func:`read_history`'s rows.
+
+    Raises InputError naming the URL (without its password) when it is not a PostgreSQL URL or
+    the database cannot be read.
+    """
+    try:
+        plant = PlantDatabase(url, connect_timeout_s=connect_timeout_s, application_name="inspector history (reader)")
+    except ValueError as e:
+        raise InputError(str(e)) from None
+    try:
+        return plant.read(last=last, cell=cell)
+    except PlantUnavailable as e:
+        raise InputError(str(e)) from None
+    finally:
+        plant.close()
+
+
+# --------------------------------------------------------------------------- the plugin
+
+
+@dataclass(frozen=True)
+class HistorySettings:
+    """``[plugins.history]``: the plant database besides ``OUTDIR/history.sqlite``, and the cell."""
+
+    url: str = param("", "the plant database, postgresql://USER@HOST[:PORT]/DATABASE; '' takes "
+                         "$INSPECTOR_HISTORY_URL, else only OUTDIR/history.sqlite is written")
+    cell: str = param("", "this cell's name in the history; '' takes $INSPECTOR_HISTORY_CELL, else the host name")
+    connect_timeout_s: int = param(3, "seconds to wait for the plant database to answer", min=1, max=60)
+    retry_s: float = param(30.0, "after a failed connection, seconds during which rows go straight to the spool",
+                           min=0.0, max=3600.0)
+
+    def __post_init__(self) -> None:
+        if self.url:
+            check_url(self.url)
+        if len(self.cell) > 64 or any(ord(c) < 32 or ord(c) == 127 for c in self.cell):
+            raise ValueError(f"cell: at most 64 characters, none a control character: {self.cell[:70]!r}")
+
+    def __repr__(self) -> str:  # a recipe's repr, in a log or a traceback, never shows the password
+        return (f"HistorySettings(url={mask_url(self.url)!r}, cell={self.cell!r}, "
+                f"connect_timeout_s={self.connect_timeout_s!r}, retry_s={self.retry_s!r})")
+
+
+@dataclass(frozen=True)
+class _Target:
+    """Where one run's rows go: the cell's name and the plant database (None: the file only)."""
+
+    cell: str
+    url: str | None
+    settings: HistorySettings
+
+
+_lock = threading.Lock()
+#: The recipe's settings of each run folder (resolved path), from inspector_on_run_start.
+_settings: dict[str, HistorySettings] = {}
+#: One connection (and outage state) per run folder and URL, kept between records.
+_plants: dict[tuple[str, str], PlantDatabase] = {}
+#: URLs already warned about as invalid (from the environment: the recipe's are checked on load).
+_invalid_warned: set[str] = set()
+
+
+def _key(outdir: Path) -> str:
+    return str(Path(outdir).resolve())
+
+
+def _target(outdir: Path) -> _Target:
+    with _lock:
+        settings = _settings.get(_key(outdir)) or HistorySettings()
+    url = settings.url or os.environ.get(URL_ENV, "").strip() or None
+    return _Target(settings.cell or default_cell(), url, settings)
+
+
+def _warn(text: str) -> None:
+    print(f"inspector: warning: {text}", file=sys.stderr, flush=True)
+
+
+def _plant(outdir: Path, target: _Target) -> PlantDatabase | None:
+    """The run folder's connection to ``target.url`` (None, warned once, for an invalid URL)."""
+    assert target.url is not None
+    key = (_key(outdir), target.url)
+    with _lock:
+        plant = _plants.get(key)
+        if plant is None:
+            try:
+                plant = PlantDatabase(target.url, connect_timeout_s=target.settings.connect_timeout_s,
+                                      retry_s=target.settings.retry_s,
+                                      application_name=f"inspector history ({target.cell})")
+            except ValueError as e:
+                if target.url not in _invalid_warned:
+                    _invalid_warned.add(target.url)
+                    _warn(f"history: {URL_ENV}: {str(e).removeprefix('url: ')}; rows wait in the spool of "
+                          f"{Path(outdir) / HISTORY_FILE}")
+                return None
+            _plants[key] = plant
+    return plant
+
+
+def _send(outdir: Path, target: _Target, *, con: sqlite3.Connection | None = None) -> int | None:
+    """Flush the run folder's spool to the plant database; the rows sent, None when it could
+    not be reached (one warning line per outage, naming the database without its password)."""
+    plant = _plant(outdir, target)
+    if plant is None:
+        return None
+    with plant.lock:
+        if not plant.due():
+            return None  # down a moment ago: the row waits in the spool, nobody waits for the server
+        try:
+            sent = flush_spool(outdir, plant, con=con)
+        except PlantUnavailable as e:
+            if plant.failed():
+                left = spooled(outdir)
+                _warn(f"history: {e}; {left} inspection{'s wait' if left != 1 else ' waits'} in the spool of "
+                      f"{Path(outdir) / HISTORY_FILE}, sent when it answers again")
+            return None
+        if plant.succeeded():
+            print(f"inspector: history: plant database {plant.label} answers again; {sent} spooled "
+                  f"inspection{'s' if sent != 1 else ''} sent", file=sys.stderr, flush=True)
+        return sent
+
+
+@hookimpl
+def inspector_register_settings(registry: SettingsRegistry) -> None:
+    """``[plugins.history]``: the plant database (PostgreSQL) and the cell's name."""
+    registry.add(HistorySettings, "the plant database (a PostgreSQL URL) and this cell's name")
+
+
+@hookimpl
+def inspector_on_run_start(recipe: Recipe, outdir: Path, source: str) -> None:
+    settings = recipe.plugins.get("history")
+    with _lock:
+        _settings[_key(outdir)] = settings if isinstance(settings, HistorySettings) else HistorySettings()
+    target = _target(outdir)
+    if target.url is not None and spooled(outdir):
+        _send(outdir, target)  # what an earlier run left in the spool
+
+
 @hookimpl
 def inspector_on_result(result: InspectionResult, outdir: Path | None) -> None:
-    if outdir is not None:
-        record(result, Path(outdir).parent)
+    if outdir is None:
+        return
+    run_dir = Path(outdir).parent
+    target = _target(run_dir)
+    con = _connect(run_dir / HISTORY_FILE)
+    try:
+        record(result, run_dir, cell=target.cell, spool=target.url is not None, con=con)
+        if target.url is not None:
+            _send(run_dir, target, con=con)  # the spool, this row last
+    finally:
+        con.close()
+
+
+@hookimpl
+def inspector_on_run_end(recipe: Recipe, outdir: Path, summary: RunSummary) -> None:
+    target = _target(outdir)
+    if target.url is None:
+        return
+    if spooled(outdir):
+        _send(outdir, target)
+    with _lock:
+        plant = _plants.get((_key(outdir), target.url))
+    if plant is not None:  # the connection closes; its outage state stays for the next run
+        with plant.lock:
+            plant.close()
 
 
 # --------------------------------------------------------------------------- inspector history
 
 
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("history", help="list the inspections recorded in OUTDIR/history.sqlite, and the yield")
-    p.add_argument("outdir", metavar="OUTDIR", help="an inspector run --out folder")
+    p = subparsers.add_parser("history", help="list the inspections recorded in OUTDIR/history.sqlite or in the plant "
+                                              "database, and the yield")
+    p.add_argument("outdir", metavar="OUTDIR", nargs="?",
+                   help="an inspector run --out folder (none: the plant database, --url or $" + URL_ENV + ")")
+    p.add_argument("--url", metavar="URL", help="the plant database, postgresql://USER@HOST[:PORT]/DATABASE (default $"
+                                                + URL_ENV + "; a password is better in $PGPASSWORD or ~/.pgpass)")
+    p.add_argument("--cell", metavar="NAME", help="only the inspections of this cell")
+    p.add_argument("--send", action="store_true", help="send OUTDIR's spooled inspections to the plant database now")
     p.add_argument("--last", type=int, metavar="N", help="only the last N inspections")
     p.add_argument("--json", action="store_true", help="the rows as JSON")
     p.add_argument("--plot", metavar="PNG", help="also draw the trend: each part's deviation range against its tolerance")
@@ -292,14 +617,59 @@ def _fmt(x: Any, spec: str) -> str:
     return "-" if x is None else format(x, spec)
 
 
-def run(args) -> int:
-    import sys
+def _url_of(args) -> tuple[str | None, str]:
+    """(the plant database's URL, where it came from) of ``inspector history``'s arguments."""
+    if args.url:
+        return args.url, "--url"
+    return os.environ.get(URL_ENV, "").strip() or None, URL_ENV
 
+
+def _send_now(outdir: Path, url: str) -> int:
+    """``inspector history OUTDIR --send``."""
+    plant = PlantDatabase(url, connect_timeout_s=10, application_name="inspector history --send")
+    try:
+        sent = flush_spool(outdir, plant)
+    except PlantUnavailable as e:
+        print(f"inspector: error: {e}; {spooled(outdir)} inspections stay in the spool", file=sys.stderr)
+        return 3
+    finally:
+        plant.close()
+    print(f"sent {sent} spooled inspection{'s' if sent != 1 else ''} to {plant.label}")
+    return 0
+
+
+def run(args) -> int:
     if args.last is not None and args.last < 1:
         print(f"inspector: error: --last: expected a number >= 1, got {args.last}", file=sys.stderr)
         return 2
+    url, source = _url_of(args)
+    if url is not None and (args.send or args.outdir is None):
+        try:
+            check_url(url)
+        except ValueError as e:
+            print(f"inspector: error: {source}: {str(e).removeprefix('url: ')}", file=sys.stderr)
+            return 2
+    if args.send:
+        if args.outdir is None or url is None:
+            print(f"inspector: error: --send: give OUTDIR and the plant database (--url URL or ${URL_ENV})", file=sys.stderr)
+            return 2
+        if not (Path(args.outdir) / HISTORY_FILE).is_file():
+            print(f"inspector: error: {Path(args.outdir) / HISTORY_FILE}: no history", file=sys.stderr)
+            return 3
+        return _send_now(Path(args.outdir), url)
+    if args.outdir is not None and args.url:
+        print("inspector: error: give OUTDIR (its history.sqlite) or --url (the plant database), not both", file=sys.stderr)
+        return 2
+    plant = args.outdir is None
+    if plant and url is None:
+        print(f"inspector: error: history: give OUTDIR, or the plant database with --url URL or ${URL_ENV}", file=sys.stderr)
+        return 2
     try:
-        rows = read_history(Path(args.outdir), last=args.last)
+        if plant:
+            assert url is not None
+            rows = read_plant(url, last=args.last, cell=args.cell)
+        else:
+            rows = read_history(Path(args.outdir), last=args.last, cell=args.cell)
     except InputError as e:
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
@@ -312,14 +682,20 @@ def run(args) -> int:
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
-    print(f"{'inspected at (UTC)':24s} {'capture':24s} {'part id':14s} {'verdict':7s} {'defects':>7s} {'worst mm':>9s} {'s':>6s}")
+    cell_head = f"{'cell':14s} " if plant else ""
+    print(f"{'inspected at (UTC)':24s} {cell_head}{'capture':24s} {'part id':14s} {'verdict':7s} {'defects':>7s} "
+          f"{'worst mm':>9s} {'s':>6s}")
     for r in rows:
-        print(f"{r['inspected_at'][:23]:24s} {r['capture'][:24]:24s} {(r['part_id'] or '-')[:14]:14s} "
+        cell = f"{(r['cell'] or '-')[:14]:14s} " if plant else ""
+        print(f"{r['inspected_at'][:23]:24s} {cell}{r['capture'][:24]:24s} {(r['part_id'] or '-')[:14]:14s} "
               f"{r['verdict'].upper():7s} {r['n_defects']:7d} {_fmt(r['worst_mm'], '+9.3f'):>9s} {_fmt(r['total_s'], '6.2f'):>6s}")
     n, share = tally(rows)
     yld = f"yield {share:.1%} of the parts judged" if share is not None else "no part judged"
     span = f", {rows[0]['inspected_at'][:19]} to {rows[-1]['inspected_at'][:19]}" if rows else ""
     print(f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}{span}")
+    waiting = 0 if plant else spooled(Path(args.outdir))
+    if waiting:
+        print(f"{waiting} of them wait in the spool for the plant database (sent at the next record, or with --send)")
     if args.plot:
         print(f"wrote {args.plot}")
     return 0
@@ -327,7 +703,8 @@ def run(args) -> int:
 
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
-    """``inspector history OUTDIR``."""
+    """``inspector history [OUTDIR]``."""
     from inspector.registry import CommandSpec
 
-    registry.add(CommandSpec("history", add_parser, run, "the inspections recorded in OUTDIR/history.sqlite, the yield"))
+    registry.add(CommandSpec("history", add_parser, run,
+                             "the inspections recorded in OUTDIR/history.sqlite or the plant database, the yield"))

@@ -346,7 +346,7 @@ def _headless(recipe: str, reference: str | None, folder: Path, out: Path, runs:
     session = Session.open(recipe, out, reference=reference)
     got: list[Any] = []
     session.subscribe(lambda e: got.append(e.outcome.result) if isinstance(e, Inspected) else None)
-    records = []
+    records: list[dict[str, Any]] = []
     try:
         for i in range(runs + 1):
             got.clear()
@@ -354,7 +354,7 @@ def _headless(recipe: str, reference: str | None, folder: Path, out: Path, runs:
             session.run(Source(captures=(str(folder),), limit=1))
             wall = time.perf_counter() - t0
             res = got[-1] if got else None
-            rec = {"verdict": res.verdict if res else None, "error": res.error if res else "no result",
+            rec: dict[str, Any] = {"verdict": res.verdict if res else None, "error": res.error if res else "no result",
                    "total_s": res.timings_s.get("total") if res else None, "wall_s": wall,
                    "points": int(len(res.bcps.points)) if res is not None and res.bcps is not None else 0}
             say(f"  headless {'warm-up' if i == 0 else f'run {i}/{runs}'}: {rec['verdict']} in {wall:.3f} s "

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from PySide6.QtWidgets import (
     QCheckBox,
@@ -32,9 +32,15 @@ from PySide6.QtWidgets import (
 
 from inspector.recipe_form import Field, RecipeForm, form_for, save_new, validate
 
+if TYPE_CHECKING:
+    from inspector.manager import PluginManager
+
 __all__ = ["LoginDialog", "RecipeEditor"]
 
 _BIG = 1e12  # a spin box needs finite bounds
+
+#: The widget that edits one parameter (see :meth:`RecipeEditor._editor`).
+_Editor: TypeAlias = QCheckBox | QComboBox | QSpinBox | QDoubleSpinBox | QLineEdit
 
 
 class LoginDialog(QDialog):
@@ -84,7 +90,7 @@ class RecipeEditor(QDialog):
     After ``exec()`` returns Accepted, :attr:`saved` is the new recipe file.
     """
 
-    def __init__(self, recipe: Path, pm: Any, save_dir: Path, parent: QWidget | None = None) -> None:
+    def __init__(self, recipe: Path, pm: PluginManager, save_dir: Path, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.pm = pm
         self.save_dir = Path(save_dir)
@@ -92,7 +98,7 @@ class RecipeEditor(QDialog):
         self.saved: Path | None = None
         self.setWindowTitle(f"Recipe editor: {self.form.name} ({Path(recipe).name})")
         self.resize(900, 760)
-        self.editors: dict[tuple[str, str], QWidget] = {}
+        self.editors: dict[tuple[str, str], _Editor] = {}
         body = QWidget()
         col = QVBoxLayout(body)
         for sec in self.form.sections:
@@ -130,32 +136,38 @@ class RecipeEditor(QDialog):
         row.addWidget(check)
         row.addWidget(save)
         row.addWidget(cancel)
-        lay = QVBoxLayout(self)
-        lay.addWidget(scroll, 1)
-        lay.addWidget(self.status)
-        lay.addLayout(row)
+        outer = QVBoxLayout(self)
+        outer.addWidget(scroll, 1)
+        outer.addWidget(self.status)
+        outer.addLayout(row)
         self.setStyleSheet("QPushButton { min-height: 40px; min-width: 110px; font-size: 12pt; }")
 
-    def _editor(self, f: Field) -> QWidget:
+    def _editor(self, f: Field) -> _Editor:
+        w: _Editor
         if f.kind == "bool":
-            w = QCheckBox()
-            w.setChecked(bool(f.value))
+            check = QCheckBox()
+            check.setChecked(bool(f.value))
+            w = check
         elif f.kind == "choice" and f.choices:
-            w = QComboBox()
+            combo = QComboBox()
             for c in f.choices:
-                w.addItem(str(c), c)
-            w.setCurrentIndex(max(0, list(f.choices).index(f.value)) if f.value in f.choices else 0)
+                combo.addItem(str(c), c)
+            combo.setCurrentIndex(max(0, list(f.choices).index(f.value)) if f.value in f.choices else 0)
+            w = combo
         elif f.kind == "int" and f.value is not None:
-            w = QSpinBox()
-            w.setRange(int(max(f.min, -2**31)) if f.min is not None else -2**31, int(min(f.max, 2**31 - 1)) if f.max is not None else 2**31 - 1)
-            w.setValue(int(f.value))
+            spin = QSpinBox()
+            spin.setRange(int(max(f.min, -2**31)) if f.min is not None else -2**31,
+                          int(min(f.max, 2**31 - 1)) if f.max is not None else 2**31 - 1)
+            spin.setValue(int(f.value))
+            w = spin
         elif f.kind == "float" and f.value is not None:
-            w = QDoubleSpinBox()
-            w.setDecimals(4)
+            real = QDoubleSpinBox()
+            real.setDecimals(4)
             # The loader judges the range (one line, the same as recipe check): the box
             # lets any number through so its message, not a silent clamp, answers.
-            w.setRange(-_BIG, _BIG)
-            w.setValue(float(f.value))
+            real.setRange(-_BIG, _BIG)
+            real.setValue(float(f.value))
+            w = real
         else:
             w = QLineEdit(_show(f.value))
         w.setMinimumHeight(34)

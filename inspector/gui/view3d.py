@@ -17,6 +17,7 @@ the rest of the window repaints without OpenGL.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 import pyvista as pv
@@ -107,7 +108,11 @@ class DeviationView(QWidget):
         # with software OpenGL on an idle screen, measured); the view renders after each change
         # and on interaction. No multisampling (see the module's doc).
         self.plotter = _Interactor(self, auto_update=False, multi_samples=0)
-        self.plotter.set_background("#1f2428", top="#3b4450")
+        # This class calls the renderers' and the renderer's own set_background, add_axes and
+        # remove_actor, not the plotter's forwarders to them: those are made with
+        # functools.wraps, which mypy types as unbound functions (``self`` missing). The same
+        # calls: the plotter has one renderer.
+        self.plotter.renderers.set_background("#1f2428", top="#3b4450")
         # Translucency by plain blending: VTK's order-independent transparency costs extra
         # full-window passes (7-25 ms a render with software OpenGL, measured), and the
         # translucent parts (a convex reference, wireframe markers) look the same without.
@@ -125,16 +130,16 @@ class DeviationView(QWidget):
         self.view: ResultView | None = None
         self._cmap = deviation_colormap()
         self._caption = self.plotter.add_text("", name="caption", font_size=10, position="upper_left", color="white")
-        self.plotter.add_axes()
+        self.plotter.renderer.add_axes()
         # Made on first use, then updated in place.
         self._cloud: pv.PolyData | None = None
-        self._cloud_actor = None
+        self._cloud_actor: pv.Actor | None = None
         self._bar_tolerance: tuple[float, float] | None = None
         self._ref: pv.PolyData | None = None
-        self._ref_actor = None
+        self._ref_actor: pv.Actor | None = None
         self._ref_faces: np.ndarray | None = None
         self._marks: pv.PolyData | None = None
-        self._marks_actor = None
+        self._marks_actor: pv.Actor | None = None
         self._labels: pv.PolyData | None = None
 
     # -- showing ------------------------------------------------------------------------------
@@ -154,7 +159,7 @@ class DeviationView(QWidget):
         p.suppress_rendering = True
         try:
             for name in _SELECTION:
-                p.remove_actor(name, reset_camera=False, render=False)
+                p.renderer.remove_actor(name, reset_camera=False, render=False)
             self._set_reference(view.reference)
             self._set_cloud(view)
             self._set_defects(view.defects)
@@ -164,7 +169,9 @@ class DeviationView(QWidget):
         finally:
             p.suppress_rendering = False
 
-    def render(self) -> None:
+    # Replaces QWidget.render(target, ...) (drawing the widget into a paint device), which this
+    # view never uses: its callers (the window's drawing steps, the bench) mean the 3D scene.
+    def render(self) -> None:  # type: ignore[override]
         """One render of the scene (the widget's paint then shows it without rendering again)."""
         self.plotter.render()
 
@@ -195,6 +202,7 @@ class DeviationView(QWidget):
             else:
                 self._ref.copy_from(mesh, deep=False)
         self._ref_faces = f
+        assert self._ref_actor is not None  # made with self._ref
         self._ref_actor.SetVisibility(True)
 
     def _set_cloud(self, view: ResultView) -> None:
@@ -209,7 +217,9 @@ class DeviationView(QWidget):
         if scaled is None or len(scaled) != len(view.points):
             scaled = normalised(view.deviation, view.tolerance)
         cloud = pv.PolyData(np.asarray(view.points, np.float32))
-        cloud.point_data.set_array(np.asarray(scaled, np.float32), SCALED, deep_copy=False)
+        # cast: pyvista types set_array's data as float64 (ArrayLike[float]) but takes any numeric
+        # dtype (its own __setitem__ passes ArrayLike[Any]); float32 here, half the memory.
+        cloud.point_data.set_array(cast(Any, np.asarray(scaled, np.float32)), SCALED, deep_copy=False)
         lo, hi = view.tolerance
         notes = {-SPAN: f"{SPAN * lo:+.2f} mm", -1.0: f"{lo:+.2f} mm", 0.0: "0 mm", 1.0: f"{hi:+.2f} mm",
                  SPAN: f"{SPAN * hi:+.2f} mm"}
@@ -222,6 +232,7 @@ class DeviationView(QWidget):
                                      height=0.76, width=0.07, title_font_size=16, label_font_size=14, color="white"),
                 render=False)
         else:
+            assert self._cloud_actor is not None  # made with self._cloud
             self._cloud.copy_from(cloud, deep=False)  # the actor's own data object, new arrays
             if self._bar_tolerance != view.tolerance:  # the bar relabelled for this result's limits
                 self._cloud_actor.mapper.lookup_table.annotations = notes
@@ -248,6 +259,7 @@ class DeviationView(QWidget):
                                            opacity=0.45, reset_camera=False, render=False)
         else:
             self._marks.copy_from(marks, deep=False)
+        assert self._marks_actor is not None  # made with self._marks
         self._marks_actor.SetVisibility(True)
         from vtkmodules.vtkCommonCore import vtkStringArray
 
@@ -308,7 +320,7 @@ class DeviationView(QWidget):
                 direction = rays[0]
         else:
             for name in _SELECTION[1:]:
-                p.remove_actor(name, render=False)
+                p.renderer.remove_actor(name, render=False)
         if direction is None:
             cam = np.asarray(p.camera.position) - np.asarray(p.camera.focal_point)
             direction = cam

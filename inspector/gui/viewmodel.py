@@ -159,7 +159,8 @@ def reason_text(verdict: str, defects: list[dict[str, Any]] | tuple[DefectRow, .
         return error or ""
     if verdict != "fail" or not defects:
         return ""
-    rows = [d if isinstance(d, dict) else {"kind": d.kind, "region": d.region, "worst_mm": d.worst_mm} for d in defects]
+    rows: list[dict[str, Any]] = [
+        d if isinstance(d, dict) else {"kind": d.kind, "region": d.region, "worst_mm": d.worst_mm} for d in defects]
     worst = max(rows, key=lambda d: abs(d["worst_mm"]))
     limit = tolerance[0] if worst["kind"] == "missing" else tolerance[1]
     what = "missing material" if worst["kind"] == "missing" else "excess material"
@@ -181,6 +182,12 @@ def _defect_cameras(d: dict[str, Any], points: np.ndarray, deviation: np.ndarray
     return tuple(names[i] if 0 <= i < len(names) else f"#{i}" for i in idx)
 
 
+def _xyz(v: Any) -> tuple[float, float, float]:
+    """A 3-vector of a defect (``position``, ``extent``) as floats."""
+    x, y, z = v
+    return float(x), float(y), float(z)
+
+
 def _defect_rows(defects: list[dict[str, Any]], points, deviation, camera, tolerance, names) -> tuple[DefectRow, ...]:
     return tuple(
         DefectRow(
@@ -189,8 +196,8 @@ def _defect_rows(defects: list[dict[str, Any]], points, deviation, camera, toler
             region=str(d.get("region", "default")),
             n_points=int(d["n_points"]),
             worst_mm=float(d["worst_mm"]),
-            position=tuple(float(x) for x in d["position"]),
-            extent=tuple(float(x) for x in d["extent"]),
+            position=_xyz(d["position"]),
+            extent=_xyz(d["extent"]),
             cameras=_defect_cameras(d, points, deviation, camera, tolerance, names),
         )
         for k, d in enumerate(defects)
@@ -355,7 +362,8 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
             camera = np.asarray(cols.get("camera", np.zeros(len(points))), np.int16)
         except Exception as e:  # noqa: BLE001 - a damaged PLY: the verdict is still shown
             raise InputError(f"{folder / str(named)}: cannot be read ({type(e).__name__})") from None
-    names, centres = (), np.zeros((0, 3))
+    names: tuple[str, ...] = ()
+    centres = np.zeros((0, 3))
     rig_file = folder / "rig.json"
     if rig_file.is_file():  # not a CONTRACT output; used when present
         try:

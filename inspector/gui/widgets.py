@@ -18,7 +18,7 @@ import threading
 
 import numpy as np
 from PySide6.QtCore import QEvent, QPointF, QRect, QRectF, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import QColor, QFont, QImage, QKeySequence, QPainter, QPainterPath, QPen, QPixmap, QShortcut
+from PySide6.QtGui import QColor, QFont, QHelpEvent, QImage, QKeySequence, QPainter, QPainterPath, QPen, QPixmap, QShortcut
 from PySide6.QtWidgets import (
     QAbstractItemView,
     QDialog,
@@ -424,8 +424,8 @@ class CameraDialog(QDialog):
         lay.addWidget(self.view, 1)
         lay.addLayout(row)
         for key, f in (("+", 1.25), ("=", 1.25), ("-", 0.8)):
-            QShortcut(QKeySequence(key), self, activated=lambda f=f: self.view.scale(f, f))
-        QShortcut(QKeySequence("0"), self, activated=self.fit)
+            QShortcut(QKeySequence(key), self).activated.connect(lambda f=f: self.view.scale(f, f))
+        QShortcut(QKeySequence("0"), self).activated.connect(self.fit)
 
     def fit(self) -> None:
         self.view.fitInView(self.view.scene().itemsBoundingRect(), Qt.AspectRatioMode.KeepAspectRatio)
@@ -479,7 +479,8 @@ class _Chips(QWidget):
         p.end()
 
     def event(self, event: QEvent) -> bool:
-        if event.type() == QEvent.Type.ToolTip:
+        # A tool-tip event arrives as the QHelpEvent it is (PySide6 hands events over as their subclass).
+        if event.type() == QEvent.Type.ToolTip and isinstance(event, QHelpEvent):
             for k, r in enumerate(self.rows):
                 if self._rect(k).contains(event.pos()):
                     word = VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])[0]

@@ -169,7 +169,9 @@ class MainWindow(QMainWindow):
         self._activity = _Activity(self.roles)
         from PySide6.QtWidgets import QApplication
 
-        QApplication.instance().installEventFilter(self._activity)
+        app = QApplication.instance()
+        assert app is not None  # a widget exists, so does the application
+        app.installEventFilter(self._activity)
         self._idle = QTimer(self)
         self._idle.setInterval(1000)
         self._idle.timeout.connect(self._check_idle)
@@ -251,9 +253,9 @@ class MainWindow(QMainWindow):
         self.view_menu = view_menu
 
         for key in ("Space", "F5"):
-            QShortcut(QKeySequence(key), self, activated=self.inspect, context=Qt.ShortcutContext.WindowShortcut)
-        QShortcut(QKeySequence("F6"), self, activated=self.toggle_live_key)
-        QShortcut(QKeySequence("Escape"), self, activated=self.cancel)
+            QShortcut(QKeySequence(key), self, context=Qt.ShortcutContext.WindowShortcut).activated.connect(self.inspect)
+        QShortcut(QKeySequence("F6"), self).activated.connect(self.toggle_live_key)
+        QShortcut(QKeySequence("Escape"), self).activated.connect(self.cancel)
         self._update_role()
 
     def _action(self, menu: Any, text: str, key: str, slot: Any) -> QAction:
@@ -332,8 +334,10 @@ class MainWindow(QMainWindow):
             self.banner.set_state("invalid", f"{self.recipe_path}", self.recipe_error)
         else:
             s = self.session
+            if s is None:  # closed (a valid recipe always has a session while open)
+                return
             src = f"capture {self.capture}" if self.capture else (f"watch {self.watch}" if self.watch else f"driver {s.recipe.driver.spec.name}")
-            self.recipe_label.setText(f"recipe {s.recipe.name} ({self.recipe_path.name}, sha256 {s.recipe.sha256[:10]}) \u00b7 {src} \u00b7 results in {self.out}")
+            self.recipe_label.setText(f"recipe {s.recipe.name} ({self.recipe_path.name}, sha256 {(s.recipe.sha256 or '')[:10]}) \u00b7 {src} \u00b7 results in {self.out}")
             self.recipe_label.setStyleSheet("")
             self.recipe_label.setToolTip(str(self.recipe_path))
 
@@ -686,6 +690,8 @@ class MainWindow(QMainWindow):
         self._gate.set()
         self._idle.stop()
         self._close_session()
-        QApplication.instance().removeEventFilter(self._activity)
+        app = QApplication.instance()
+        assert app is not None  # a widget exists, so does the application
+        app.removeEventFilter(self._activity)
         self.view3d.close_plotter()
         super().closeEvent(event)

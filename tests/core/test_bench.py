@@ -65,10 +65,15 @@ def test_run_tiny(tmp_path, capsys):
     """The whole command, simulating a small capture; every figure in the JSON."""
     out = tmp_path / "bench.json"
     rc = bench.run(_args("--runs", "1", "--cameras", "8", "--size", "256", "--mm-per-px", "0.4", "--carve-voxel", "0.5",
-                         "--carve-runs", "1", "--open3d-voxel", "2.0", "--json", str(out)))
+                         "--carve-runs", "1", "--open3d-voxel", "2.0", "--no-first-run", "--json", str(out)))
     assert rc in (0, 1)  # targets are for the full capture, not this one
     doc = json.loads(out.read_text())
-    assert set(doc) >= {"config", "machine", "compile", "cycles", "carving", "targets", "verdicts"}
+    assert set(doc) >= {"config", "machine", "compile", "startup", "cycles", "carving", "targets", "verdicts"}
+    # a new process inspected the capture and printed its verdict; the first run was not asked for
+    cold = doc["startup"]["cold_start"]
+    assert cold["exit"] in (0, 1) and cold["verdict"] in ("pass", "fail") and 0 < cold["verdict_s"] <= cold["exit_s"]
+    assert "first_run" not in doc["startup"] and doc["targets"]["first_run"]["met"] is None
+    assert doc["targets"]["cold_start"]["value_s"] == cold["verdict_s"]
     assert doc["compile"]["exit"] in (0, 1) and doc["compile"]["seconds"] > 0
     assert doc["verdicts"] and all(v in ("pass", "fail") for v in doc["verdicts"])
     cyc = doc["cycles"]
@@ -135,3 +140,14 @@ def test_carving_ratios(default_recipe, small_capture):
     assert 0 < ours["without_mesh_median_s"] <= ours["max_s"]
     assert c["ratio"] == pytest.approx(c["open3d"]["carve_silhouette_s"] / ours["median_s"])
     assert c["ratio_without_mesh"] == pytest.approx(c["open3d"]["carve_silhouette_s"] / ours["without_mesh_median_s"])
+
+
+def test_cold_start_times_the_verdict_line_and_a_command_error_has_none(tmp_path):
+    """A capture that cannot be read is an ERROR verdict (a line, as the CONTRACT says); a
+    recipe that cannot be read is a command error: no verdict line at all."""
+    from inspector.precompile import cold_start
+
+    r = cold_start(RECIPES / "default.toml", tmp_path / "missing", tmp_path / "out", reference="builtin:cube30")
+    assert r["verdict"] == "error" and 0 < r["verdict_s"] <= r["exit_s"] and r["exit"] != 0
+    r = cold_start(tmp_path / "nope.toml", tmp_path / "missing", tmp_path / "out2")
+    assert r["verdict_s"] is None and r["verdict"] is None and r["exit"] == 2 and r["exit_s"] > 0

@@ -128,7 +128,8 @@ def test_plugins_lists_distribution_version_what_each_provides_and_blocked(capsy
                             "file": None, "status": "loaded", "problems": [],
                             "provides": {"stage": ["bcps.ray", "bcps.surface"], "driver": [], "command": [],
                                          "settings": [], "hook": []}}
-    assert info["history"]["provides"]["command"] == ["history"] and info["history"]["provides"]["hook"] == ["on_result"]
+    assert info["history"]["provides"]["command"] == ["history"] and info["history"]["provides"]["hook"] == [
+        "on_result", "on_run_end", "on_run_start"]
     assert info["sim"]["status"] == "blocked" and info["sim"]["provides"]["driver"] == []
     assert info["genicam"]["status"] == "blocked"
     assert doc["blocked"] == ["genicam", "sim"] and "sim" not in doc["drivers"]
@@ -260,7 +261,7 @@ def test_plugin_settings_are_validated_like_stage_parameters(tmp_path):
         with pytest.raises(RecipeError, match=rf"r\.toml: plugins\.LinePlugin.*{key}"):
             parse_recipe(_recipe({"LinePlugin": table}), pm, path=tmp_path / "r.toml")
     with pytest.raises(RecipeError, match=r"plugins\.nobody: no plugin 'nobody' with settings \(plugins with settings: "
-                                          r"LinePlugin\)"):
+                                          r"LinePlugin, history\)"):
         parse_recipe(_recipe({"nobody": {}}), pm, path=tmp_path / "r.toml")
 
 

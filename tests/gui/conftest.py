@@ -28,7 +28,14 @@ def pytest_collection_modifyitems(config, items):
 def _live_interactors() -> list:
     from pyvistaqt import QtInteractor
 
-    return [o for o in gc.get_objects() if isinstance(o, QtInteractor) and not getattr(o, "_closed", True)]
+    live = []
+    for o in gc.get_objects():
+        try:
+            if isinstance(o, QtInteractor) and not getattr(o, "_closed", True):
+                live.append(o)
+        except ReferenceError:  # a dead weakref.proxy left by an earlier test in this process
+            continue
+    return live
 
 
 @pytest.fixture(autouse=True)

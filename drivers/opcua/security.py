@@ -1,0 +1,145 @@
+"""Who may connect, read and write: certificates, the user, and the permission rules.
+
+* ``inspector serve --make-cert DIR`` (:func:`make_pki`): a self-signed server certificate
+  and key, a client certificate and key for the PLC (or the example client), and
+  ``DIR/trusted/`` holding the client certificate: the server accepts a secure channel only
+  from a client whose certificate is in ``trusted/`` (BadCertificateUntrusted otherwise).
+  Copy a real PLC's certificate there to trust it.
+* Users (:class:`UserManager`): anonymous clients may connect; the one configured user with
+  the right password is a *writer*; a wrong user or password is refused
+  (BadUserAccessDenied) when the session is activated.
+* Rules (:class:`Rules`): a writer may read, subscribe, write and call; an anonymous client
+  may read and subscribe, and write or call only with ``anonymous_write = true``; nobody may
+  add or delete nodes. The inputs are the only writable variables (AccessLevel).
+
+Imports asyncua and cryptography: only :mod:`inspector_drivers.opcua.server` and the
+``serve`` command import this module.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import sys
+from pathlib import Path
+from typing import Any
+
+from asyncua import ua
+from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
+
+from inspector.errors import RecipeError
+from inspector_drivers.opcua.config import CLIENT_CERT, CLIENT_KEY, SERVER_CERT, SERVER_KEY, TRUSTED, Credentials
+
+__all__ = ["SERVER_URI", "CLIENT_URI", "make_pki", "make_certificate", "UserManager", "Rules", "validator"]
+
+#: The server's application URI (in its certificate's subject alternative names).
+SERVER_URI = "urn:inspector-bcps:opcua:server"
+#: The example client's (the PLC's) application URI, in the client certificate made with it.
+CLIENT_URI = "urn:inspector-bcps:opcua:plc"
+
+_WRITE = {ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary), ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)}
+
+
+def make_certificate(cert_file: Path, key_file: Path, *, uri: str, name: str, server: bool,
+                     hosts: tuple[str, ...] = (), days: int = 3650) -> None:
+    """A self-signed application certificate (DER) and its RSA 2048 key (PEM, mode 0600)
+    for ``uri``; ``hosts``: DNS names or IP addresses it is valid for (a server's)."""
+    import ipaddress
+
+    from asyncua.crypto.cert_gen import dump_private_key_as_pem, generate_private_key, generate_self_signed_app_certificate
+    from cryptography import x509
+    from cryptography.hazmat.primitives.serialization import Encoding
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+
+    key = generate_private_key()
+    alt: list[x509.GeneralName] = [x509.UniformResourceIdentifier(uri)]
+    for h in hosts:
+        try:
+            alt.append(x509.IPAddress(ipaddress.ip_address(h)))
+        except ValueError:
+            alt.append(x509.DNSName(h))
+    use = [ExtendedKeyUsageOID.SERVER_AUTH if server else ExtendedKeyUsageOID.CLIENT_AUTH]
+    cert = generate_self_signed_app_certificate(key, name, {"organizationName": "Inspector"}, alt, use, days=days)
+    fd = os.open(key_file, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(dump_private_key_as_pem(key))
+    with open(cert_file, "xb") as f:
+        f.write(cert.public_bytes(Encoding.DER))
+
+
+def make_pki(folder: str | os.PathLike[str], hosts: tuple[str, ...] = ()) -> list[Path]:
+    """``folder`` with a server certificate and key, a client (PLC) certificate and key, and
+    ``trusted/`` holding the client certificate; the files written. RecipeError, writing
+    nothing, when one of them exists already (a certificate is never replaced silently)."""
+    root = Path(folder)
+    files = [root / SERVER_CERT, root / SERVER_KEY, root / CLIENT_CERT, root / CLIENT_KEY, root / TRUSTED / CLIENT_CERT]
+    taken = [f for f in files if f.exists()]
+    if taken:
+        raise RecipeError(f"--make-cert {root}: {taken[0]} exists already (remove it to make new certificates)")
+    (root / TRUSTED).mkdir(parents=True, exist_ok=True)
+    names = tuple(dict.fromkeys((*hosts, socket.gethostname(), "localhost", "127.0.0.1")))
+    make_certificate(root / SERVER_CERT, root / SERVER_KEY, uri=SERVER_URI, name="Inspector OPC UA server", server=True,
+                     hosts=names)
+    make_certificate(root / CLIENT_CERT, root / CLIENT_KEY, uri=CLIENT_URI, name="Inspector PLC client", server=False,
+                     hosts=(socket.gethostname(),))  # for the example client on this machine
+    (root / TRUSTED / CLIENT_CERT).write_bytes((root / CLIENT_CERT).read_bytes())
+    return files
+
+
+class UserManager:
+    """asyncua's user manager: anonymous, or the configured user with the right password."""
+
+    def __init__(self, creds: Credentials | None, log: Any = None) -> None:
+        self._creds = creds
+        self._log = log
+        self._ok: set[bytes] = set()  # digests of accepted (user, password): PBKDF2 once per password
+
+    def get_user(self, iserver: Any, username: str | None = None, password: Any = None, certificate: Any = None) -> User | None:
+        if username is None and password is None:
+            return User(role=UserRole.Anonymous)
+        import hashlib
+
+        pw = password.encode("utf-8") if isinstance(password, str) else bytes(password or b"")
+        key = hashlib.sha256((username or "").encode("utf-8") + b"\0" + pw).digest()
+        if self._creds is not None and (key in self._ok or self._creds.check(username, password)):
+            self._ok.add(key)
+            return User(role=UserRole.User, name=username)
+        if self._log is not None:
+            self._log(f"login refused: user {username!r} (wrong user or password)")
+        return None  # BadUserAccessDenied
+
+
+class Rules(SimpleRoleRuleset):
+    """Writers read, write and call; anonymous clients read (and write with ``anonymous_write``);
+    no one changes the address space."""
+
+    def __init__(self, anonymous_write: bool) -> None:
+        super().__init__()
+        user = set(self._permission_dict[UserRole.User])
+        self._permission_dict[UserRole.Admin] = user
+        self._permission_dict[UserRole.Anonymous] = user if anonymous_write else user - _WRITE
+
+
+async def validator(trusted: Path) -> Any:
+    """The client-certificate check: time range, application URI, key usage, and the
+    certificate itself in ``trusted`` (BadCertificateUntrusted otherwise)."""
+    from asyncua.crypto.truststore import TrustStore
+    from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+
+    store = TrustStore([trusted], [])
+    await store.load()
+    return CertificateValidator(CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT,
+                                store)
+
+
+def quiet_library_logs() -> None:
+    """asyncua logs every refused request as an error with a traceback: the server reports
+    refusals itself, in one line. Its loggers show only critical messages unless
+    ``INSPECTOR_OPCUA_DEBUG`` is set."""
+    import logging
+
+    if os.environ.get("INSPECTOR_OPCUA_DEBUG"):
+        logging.basicConfig(stream=sys.stderr, level=logging.DEBUG)
+        return
+    for name in ("asyncua", "asyncuagds"):  # asyncuagds: the trust store's "not trusted" traceback
+        logging.getLogger(name).setLevel(logging.CRITICAL)

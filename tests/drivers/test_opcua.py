@@ -1,0 +1,498 @@
+"""``inspector serve``: a real OPC UA server and real asyncua clients over loopback.
+
+One server (module scope) serves ``opcua_recipes/fast.toml`` (a tiny simulated rig, segment +
+carve: the server is under test, not the pipeline) on ``opc.tcp://127.0.0.1:<free port>``
+with Basic256Sha256 sign-and-encrypt, a PKI made by ``make_pki`` and a user ``plc``. A test
+plugin on its plugin manager (:class:`Gate`) can hold an inspection inside its first stage,
+so "busy" is a state the tests choose, not a race. No timing is asserted anywhere.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("asyncua", reason="asyncua is not installed (make installs it from requirements.lock)")
+
+from asyncua import Client, ua  # noqa: E402
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256  # noqa: E402
+
+from inspector import hookimpl  # noqa: E402
+from inspector.errors import RecipeError  # noqa: E402
+from inspector_drivers.opcua import model  # noqa: E402
+from inspector_drivers.opcua.config import ServerSettings, credentials, load_settings, parse_endpoint  # noqa: E402
+from inspector_drivers.opcua.security import CLIENT_URI, make_certificate, make_pki  # noqa: E402
+from inspector_drivers.opcua.server import InspectorServer, ServerThread, part_id_problem  # noqa: E402
+from inspector_plugins.history import read_history  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[2]
+RECIPES = Path(__file__).resolve().parent / "opcua_recipes"
+BIN = Path(sys.executable).parent
+USER, PASSWORD = "plc", "correct horse battery"
+WAIT_S = 120.0  # generous: the first cycle of a process loads the compiled kernels
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Gate:
+    """Holds every stage (``inspector_before_stage``) while armed, until opened."""
+
+    def __init__(self) -> None:
+        self.armed = False
+        self.entered = threading.Event()
+        self.released = threading.Event()
+
+    @hookimpl
+    def inspector_before_stage(self, context, stage, step):
+        if self.armed:
+            self.entered.set()
+            self.released.wait(WAIT_S)
+
+    def arm(self) -> None:
+        self.entered.clear()
+        self.released.clear()
+        self.armed = True
+
+    def open(self) -> None:
+        self.armed = False
+        self.released.set()
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    from inspector.manager import create_plugin_manager
+
+    root = tmp_path_factory.mktemp("opcua")
+    make_pki(root / "pki")
+    gate = Gate()
+    pm = create_plugin_manager()
+    pm.register(gate, "opcua_test_gate")
+    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    settings = ServerSettings(endpoint=url, pki=root / "pki", recipes=RECIPES)
+    lines: list[str] = []
+    server = InspectorServer(RECIPES / "fast.toml", root / "out", settings, pm=pm, log=lines.append,
+                             env={"INSPECTOR_OPCUA_USER": USER, "INSPECTOR_OPCUA_PASSWORD": PASSWORD})
+    with ServerThread(server):
+        yield type("Cell", (), {"url": url, "root": root, "pki": root / "pki", "out": root / "out", "server": server,
+                                "gate": gate, "lines": lines})()
+    gate.open()
+
+
+class Plc:
+    """A connected client and the Inspector nodes."""
+
+    def __init__(self, client: Client, idx: int) -> None:
+        self.client, self.idx = client, idx
+        self.obj = client.get_node(ua.NodeId(model.OBJECT, idx))
+
+    def node(self, name: str):
+        return self.client.get_node(ua.NodeId(model.node_id(name), self.idx))
+
+    async def read(self, *names: str):
+        values = await self.client.read_values([self.node(n) for n in names])
+        return values[0] if len(names) == 1 else values
+
+    async def call(self, method: str, *args):
+        return await self.obj.call_method(ua.QualifiedName(method, self.idx), *[ua.Variant(a, ua.VariantType.String)
+                                                                                for a in args])
+
+    async def trigger(self, part_id: str, via: str = "method") -> None:
+        if via == "method":
+            await self.call("StartSingleJob", part_id)
+        else:
+            await self.client.write_values([self.node("PartId"), self.node("Trigger")], [part_id, True])
+
+    async def wait(self, name: str, ok, timeout: float = WAIT_S):
+        end = time.monotonic() + timeout
+        while True:
+            value = await self.read(name)
+            if ok(value):
+                return value
+            assert time.monotonic() < end, f"{name} stayed {value!r}"
+            await asyncio.sleep(0.005)
+
+    async def counter_after(self, before: int, timeout: float = WAIT_S) -> int:
+        """Wait for ResultCounter to change: woken by a subscription (publishing interval 0),
+        as a PLC would subscribe, so no polling loads the machine while a part is inspected;
+        decided by a read, so a late notification cannot fool it."""
+        if not hasattr(self, "_changed"):
+            self._changed = asyncio.Event()
+            changed = self._changed
+
+            class Handler:
+                def datachange_notification(self, node, val, data):
+                    changed.set()
+
+            sub = await self.client.create_subscription(0, Handler())
+            await sub.subscribe_data_change(self.node("ResultCounter"))
+        end = time.monotonic() + timeout
+        while True:
+            self._changed.clear()
+            value = await self.read("ResultCounter")
+            if value != before:
+                return value
+            remaining = end - time.monotonic()
+            assert remaining > 0, f"ResultCounter stayed {before}"
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(self._changed.wait(), min(remaining, 0.5))
+
+    async def result_after(self, before: int) -> dict:
+        counter = await self.counter_after(before)
+        names = ("Verdict", "VerdictCode", "ResultPartId", "DefectCount", "WorstDeviation", "CycleTime", "ErrorText",
+                 "LastResult", "ResultCounter")
+        values = dict(zip(names, await self.read(*names)))
+        assert values["ResultCounter"] == counter  # nothing else published in between
+        return values
+
+
+@contextlib.asynccontextmanager
+async def plc(cell, *, user: str | None = USER, password: str = PASSWORD, cert: Path | None = None,
+              key: Path | None = None, secure: bool = True):
+    client = Client(cell.url, timeout=20)
+    client.application_uri = CLIENT_URI
+    if secure:
+        await client.set_security(SecurityPolicyBasic256Sha256, str(cert or cell.pki / "plc-cert.der"),
+                                  str(key or cell.pki / "plc-key.pem"), mode=ua.MessageSecurityMode.SignAndEncrypt)
+    if user:
+        client.set_user(user)
+        client.set_password(password)
+    await client.connect()
+    try:
+        yield Plc(client, await client.get_namespace_index(model.NAMESPACE))
+    finally:
+        with contextlib.suppress(Exception):
+            await client.disconnect()
+
+
+def history(cell) -> list[dict]:
+    return read_history(cell.out)
+
+
+def run(coro):
+    return asyncio.run(coro)
+
+
+# --------------------------------------------------------------------------- the handshake
+def test_a_hundred_parts_in_a_row_each_part_id_with_its_verdict_and_history_row(cell):
+    seen: list[dict] = []
+
+    async def main():
+        async with plc(cell) as p:
+            assert await p.read("State") == "Ready" and await p.read("Ready") is True
+            for i in range(100):
+                part_id = f"RUN-{i:03d}"
+                before = await p.read("ResultCounter")
+                await p.trigger(part_id, "method" if i % 2 else "variable")
+                assert await p.read("Busy") is True or await p.read("ResultCounter") == before + 1
+                res = await p.result_after(before)
+                assert res["ResultCounter"] == before + 1  # exactly one increment per trigger
+                assert res["ResultPartId"] == part_id
+                assert await p.read("Trigger") is False
+                seen.append(res)
+            await p.wait("Ready", bool)
+
+    run(main())
+    rows = {r["capture"]: r for r in history(cell) if r["capture"].startswith("RUN-")}
+    assert len(rows) == 100
+    for i, res in enumerate(seen):
+        part_id = f"RUN-{i:03d}"
+        row = rows[part_id]
+        last = json.loads(res["LastResult"])
+        assert row["part_id"] == part_id and last["part_id"] == part_id and last["capture"] == part_id
+        assert row["verdict"] == res["Verdict"] == last["verdict"] == "pass"
+        assert res["VerdictCode"] == 1 and res["ErrorText"] == ""
+        assert last["counter"] == res["ResultCounter"] and last["result_dir"] == str(cell.out / part_id)
+        assert row["triggered_at"] == last["triggered_at"]
+        assert json.loads((cell.out / part_id / "result.json").read_text())["metadata"]["part_id"] == part_id
+        assert math.isnan(res["WorstDeviation"])  # the fast recipe measures nothing
+
+
+def test_trigger_while_busy_is_refused_and_a_reconnecting_client_sees_a_consistent_state(cell):
+    async def main():
+        cell.gate.arm()
+        try:
+            async with plc(cell) as a:
+                before = await a.read("ResultCounter")
+                await a.trigger("BUSY-1", "variable")
+                assert cell.gate.entered.wait(WAIT_S)
+                assert await a.read("Busy", "Ready", "State", "Trigger") == [True, False, "SingleExecution", True]
+                with pytest.raises(ua.uaerrors.BadInvalidState):
+                    await a.trigger("BUSY-2", "method")
+                with pytest.raises(ua.uaerrors.BadInvalidState):
+                    await a.trigger("BUSY-3", "variable")
+                assert "busy with part 'BUSY-1'" in await a.read("ErrorText")
+                await a.node("Trigger").write_value(False)  # the PLC drops its bit: accepted, the cycle goes on
+                with pytest.raises(ua.uaerrors.BadInvalidState):
+                    await a.node("Trigger").write_value(True)  # a new rising edge while Busy: refused too
+                assert await a.read("PartId") == "BUSY-1"  # the refused writes changed nothing
+            # The PLC's connection drops mid-cycle; it reconnects and reads the same state.
+            async with plc(cell) as b:
+                assert await b.read("Busy", "Ready", "State", "ResultCounter") == [True, False, "SingleExecution", before]
+                cell.gate.open()
+                res = await b.result_after(before)
+                assert res["ResultCounter"] == before + 1  # the refused triggers counted nothing
+                assert (res["ResultPartId"], res["Verdict"]) == ("BUSY-1", "pass")
+                await b.wait("Busy", lambda v: v is False)
+                assert await b.read("Ready", "State", "Trigger") == [True, "Ready", False]
+        finally:
+            cell.gate.open()
+
+    run(main())
+    rows = [r for r in history(cell) if r["part_id"] and r["part_id"].startswith("BUSY-")]
+    assert [(r["capture"], r["verdict"]) for r in rows] == [("BUSY-1", "pass")]
+
+
+def test_abort_publishes_an_aborted_result_and_writes_nothing(cell):
+    async def main():
+        cell.gate.arm()
+        try:
+            async with plc(cell) as p:
+                before = await p.read("ResultCounter")
+                await p.trigger("ABORT-1")
+                assert cell.gate.entered.wait(WAIT_S)
+                await p.call("Abort")
+                cell.gate.open()
+                res = await p.result_after(before)
+                assert (res["Verdict"], res["VerdictCode"], res["ResultPartId"]) == ("aborted", 4, "ABORT-1")
+                assert res["ErrorText"]
+                await p.wait("Ready", bool)
+                before = await p.read("ResultCounter")
+                await p.trigger("ABORT-2")  # the next part runs as usual
+                assert (await p.result_after(before))["Verdict"] == "pass"
+        finally:
+            cell.gate.open()
+
+    run(main())
+    assert not (cell.out / "ABORT-1").exists()
+    assert [r["capture"] for r in history(cell) if r["capture"].startswith("ABORT-")] == ["ABORT-2"]
+
+
+def test_part_ids_that_cannot_name_a_folder_are_refused_and_a_repeated_one_gets_a_suffix(cell):
+    async def main():
+        async with plc(cell) as p:
+            before = await p.read("ResultCounter")
+            await p.node("PartId").write_value("GOOD")
+            for bad in ("a/b", "history.sqlite", "x" * 300, "..", "tab\there", ".hidden"):
+                with pytest.raises(ua.uaerrors.BadInvalidArgument):
+                    await p.node("PartId").write_value(bad)
+                with pytest.raises(ua.uaerrors.BadInvalidArgument):
+                    await p.trigger(bad)
+                with pytest.raises(ua.uaerrors.BadInvalidArgument):
+                    await p.trigger(bad, "variable")  # PartId and Trigger in one write: neither is applied
+                text = await p.read("ErrorText")
+                assert text.startswith("PartId ") and "\n" not in text
+            assert await p.read("PartId") == "GOOD" and await p.read("ResultCounter") == before
+            with pytest.raises(ua.uaerrors.BadTypeMismatch):
+                await p.node("Trigger").write_value("yes")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await p.node("Verdict").write_value("pass")  # outputs are read-only, for every user
+            for _ in range(2):
+                before = await p.read("ResultCounter")
+                await p.trigger("DUP")
+                await p.result_after(before)
+                await p.wait("Ready", bool)
+
+    run(main())
+    rows = [(r["capture"], r["part_id"]) for r in history(cell) if r["part_id"] == "DUP"]
+    assert rows == [("DUP", "DUP"), ("DUP-2", "DUP")]
+
+
+def test_recipes_switch_by_name_and_a_bad_one_is_refused(cell):
+    async def main():
+        async with plc(cell) as p:
+            assert await p.read("Recipes") == ["broken", "fast", "full"]
+            for bad, why in (("broken", "unknown stage 'segment.nothing'"), ("nope", "no recipe nope.toml"),
+                             ("../fast", "no recipe")):
+                with pytest.raises(ua.uaerrors.BadInvalidArgument):
+                    await p.node("RecipeName").write_value(bad)
+                text = await p.read("ErrorText")
+                assert why in text and "\n" not in text and "Traceback" not in text
+                assert await p.read("RecipeName", "State", "Ready") == ["fast", "Ready", True]
+            await p.node("RecipeName").write_value("full")
+            assert await p.read("RecipeName", "State", "Ready", "ErrorText") == ["full", "Ready", True, ""]
+            results = []
+            for i in range(5):
+                before = await p.read("ResultCounter")
+                await p.trigger(f"FULL-{i}")
+                results.append(await p.result_after(before))
+                await p.wait("Ready", bool)
+            await p.node("RecipeName").write_value("fast")
+            return results
+
+    results = run(main())
+    rows = {r["capture"]: r for r in history(cell) if r["capture"].startswith("FULL-")}
+    for i, res in enumerate(results):
+        row = rows[f"FULL-{i}"]
+        assert row["recipe"] == "opcua-full" and row["verdict"] == res["Verdict"] in ("pass", "fail")
+        assert res["DefectCount"] == row["n_defects"]
+        worst = max(row["deviation_min_mm"], row["deviation_max_mm"], key=abs)
+        assert res["WorstDeviation"] == pytest.approx(worst)
+        assert res["VerdictCode"] == {"pass": 1, "fail": 2}[res["Verdict"]]
+    assert cell.server.recipe_name == "fast"
+
+
+def test_continuous_execution_until_stop(cell):
+    async def main():
+        async with plc(cell) as p:
+            before = await p.read("ResultCounter")
+            await p.call("StartContinuous")
+            assert await p.read("State") == "ContinuousExecution"
+            with pytest.raises(ua.uaerrors.BadInvalidState):
+                await p.trigger("NOT-NOW")
+            await p.wait("ResultCounter", lambda c: c >= before + 3)
+            await p.call("Stop")
+            await p.wait("State", lambda s: s == "Ready")
+            assert await p.read("Busy", "Ready") == [False, True]
+            after = await p.read("ResultCounter")
+            await asyncio.sleep(0.2)
+            assert await p.read("ResultCounter") == after  # stopped: nothing more comes
+            return after - before
+
+    n = run(main())
+    assert n >= 3
+
+
+# --------------------------------------------------------------------------- security
+def test_wrong_password_unknown_user_and_an_untrusted_certificate_are_refused(cell, tmp_path):
+    make_certificate(tmp_path / "c.der", tmp_path / "k.pem", uri=CLIENT_URI, name="stranger", server=False)
+
+    async def main():
+        for user, password in ((USER, "wrong password"), ("mallory", PASSWORD)):
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                async with plc(cell, user=user, password=password):
+                    pass
+        with pytest.raises(ua.uaerrors.BadCertificateUntrusted):
+            async with plc(cell, cert=tmp_path / "c.der", key=tmp_path / "k.pem"):
+                pass
+        with pytest.raises(ua.UaError, match="No matching endpoints"):  # no unsecured endpoint is offered
+            async with plc(cell, secure=False):
+                pass
+        async with plc(cell, user=None) as anonymous:  # a trusted certificate, no user: reads only
+            assert await anonymous.read("State") == "Ready"
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await anonymous.node("PartId").write_value("ANON")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await anonymous.trigger("ANON")
+
+    run(main())
+    assert not any(r["capture"] == "ANON" for r in history(cell))
+    assert any("login refused: user 'mallory'" in line for line in cell.lines)
+    assert not any(PASSWORD in line or "wrong password" in line for line in cell.lines)  # never printed
+
+
+def test_settings_are_checked_before_the_server_starts(tmp_path):
+    cfg = tmp_path / "cell.toml"
+    cfg.write_text('[server]\nendpoint = "opc.tcp://127.0.0.1:4840"\nsecurity = "open"\n')
+    with pytest.raises(RecipeError, match=r"cell\.toml: server.*security"):
+        load_settings(cfg)
+    cfg.write_text('[server]\nport = 4840\n')
+    with pytest.raises(RecipeError, match=r"cell\.toml: server.*'port'"):
+        load_settings(cfg)
+    cfg.write_text('[recipe]\nname = "x"\n')
+    with pytest.raises(RecipeError, match="unknown table 'recipe'"):
+        load_settings(cfg)
+    cfg.write_text('[server]\npki = "pki"\nanonymous_write = true\n')
+    s = load_settings(cfg)
+    assert s.pki == tmp_path / "pki" and s.anonymous_write and s.security == "sign-encrypt"
+    for url in ("http://x:1", "opc.tcp://host", "opc.tcp://h:99999", ""):
+        with pytest.raises(RecipeError):
+            parse_endpoint(url)
+    with pytest.raises(RecipeError, match="has no password"):
+        credentials(ServerSettings(user="plc"), env={})
+    with pytest.raises(RecipeError, match="no user"):
+        credentials(ServerSettings(), env={"INSPECTOR_OPCUA_PASSWORD": "x"})
+    with pytest.raises(RecipeError, match="password_hash"):
+        credentials(ServerSettings(user="plc", password_hash="plain"), env={})
+    assert "secret" not in repr(credentials(ServerSettings(), env={"INSPECTOR_OPCUA_USER": "u",
+                                                                   "INSPECTOR_OPCUA_PASSWORD": "secret"}))
+    url = "opc.tcp://127.0.0.1:4840"
+    with pytest.raises(RecipeError, match="--make-cert"):  # sign-encrypt without a certificate
+        InspectorServer(RECIPES / "fast.toml", tmp_path / "out", ServerSettings(endpoint=url), env={})
+    with pytest.raises(RecipeError, match="plain text"):
+        InspectorServer(RECIPES / "fast.toml", tmp_path / "out", ServerSettings(endpoint=url, security="none"),
+                        env={"INSPECTOR_OPCUA_USER": "u", "INSPECTOR_OPCUA_PASSWORD": "p"})
+    assert part_id_problem("") is None and part_id_problem("A-0001_x.y") is None
+    assert part_id_problem("recipes") and part_id_problem("a\\b") and part_id_problem("é" * 101)
+
+
+# --------------------------------------------------------------------------- the README's walk-through
+def test_inspector_serve_and_the_example_client_as_the_readme_shows(tmp_path, capsys, monkeypatch):
+    import io
+
+    from inspector.cli import main
+
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    env.pop("INSPECTOR_OPCUA_USER", None)
+    env.pop("INSPECTOR_OPCUA_PASSWORD", None)
+    inspector = str(BIN / "inspector")
+    assert main(["serve", "--make-cert", str(tmp_path / "pki")]) == 0
+    assert (tmp_path / "pki" / "trusted" / "plc-cert.der").is_file()
+    assert main(["serve", "--make-cert", str(tmp_path / "pki")]) == 2  # a certificate is never replaced
+    assert "exists already" in capsys.readouterr().err
+    monkeypatch.setattr(sys, "stdin", io.StringIO(PASSWORD + "\n"))
+    assert main(["serve", "--hash-password"]) == 0
+    hashed = capsys.readouterr().out.strip()
+    assert hashed.startswith("pbkdf2_sha256$") and PASSWORD not in hashed
+    (tmp_path / "cell.toml").write_text(f'[server]\npki = "pki"\nuser = "{USER}"\npassword_hash = "{hashed}"\n')
+    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    out = tmp_path / "out"
+    recipe = tmp_path / "recipes" / "fast.toml"
+    recipe.parent.mkdir()
+    shutil.copy(RECIPES / "fast.toml", recipe)
+    server = subprocess.Popen([inspector, "serve", str(recipe), "--opcua", url, "--out", str(out),
+                               "--config", str(tmp_path / "cell.toml")],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    watchdog = threading.Timer(300, server.kill)  # a hung server fails the test, never the suite
+    watchdog.start()
+    try:
+        first = server.stdout.readline()
+        assert first.startswith(f"Inspector OPC UA server on {url}"), first + server.stderr.read()
+        client = subprocess.run([sys.executable, str(ROOT / "examples" / "plc_client.py"), "--url", url,
+                                 "--pki", str(tmp_path / "pki"), "--user", USER, "--parts", "3", "--prefix", "EX-",
+                                 "--json"], capture_output=True, text=True, timeout=300,
+                                env={**env, "INSPECTOR_OPCUA_PASSWORD": PASSWORD})
+        assert client.returncode == 0, client.stdout + client.stderr
+        parts = [json.loads(line) for line in client.stdout.splitlines()]
+        assert [(p["part_id"], p["result_part_id"], p["verdict"]) for p in parts] == [
+            (f"EX-{i:04d}", f"EX-{i:04d}", "pass") for i in (1, 2, 3)]
+        assert [p["counter"] for p in parts] == [1, 2, 3]
+    finally:
+        server.send_signal(signal.SIGINT)
+        stdout, stderr = server.communicate(timeout=120)
+        watchdog.cancel()
+    assert server.returncode == 0, stderr
+    assert "EX-0003: PASS" in stdout and "stopped after 3 results" in stdout
+    capsys.readouterr()
+    assert main(["history", str(out), "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [(r["capture"], r["part_id"], r["verdict"]) for r in rows] == [(f"EX-{i:04d}", f"EX-{i:04d}", "pass")
+                                                                            for i in (1, 2, 3)]
+
+
+# --------------------------------------------------------------------------- light and documented
+def test_the_plugin_loads_without_asyncua_and_the_readme_documents_the_model():
+    code = ("import sys, inspector\nfrom inspector.manager import create_plugin_manager\n"
+            "pm = create_plugin_manager(); assert 'serve' in pm.commands.names()\n"
+            "print([m for m in ('asyncua', 'cryptography', 'inspector_drivers.opcua.server') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+    readme = (ROOT / "README.md").read_text()
+    assert model.markdown_table() in readme  # the README's table is the model's, node for node
+    assert "examples/plc_client.py" in readme and "inspector serve" in readme

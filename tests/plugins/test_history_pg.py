@@ -1,0 +1,416 @@
+"""The ``history`` plugin's plant database (issue 17): a real PostgreSQL server, the spool.
+
+The server is Debian's ``postgresql`` package (``make`` installs it when run as root): a
+cluster made by ``initdb`` in a temporary folder, run by an unprivileged user (``nobody``
+when the tests run as root), listening on a free loopback port, with a password (scram) so
+that its masking is tested too. Without the binaries or psycopg the server tests skip and
+say why; the tests above the server's need neither server nor folder.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pwd
+import shlex
+import shutil
+import socket
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+from types import SimpleNamespace
+from urllib.parse import quote
+
+import pytest
+
+from inspector.cli import main
+from inspector.errors import RecipeError
+from inspector.model import Defect, DeviationStats, EvaluationSummary, InspectionResult
+from inspector_plugins import history
+
+PASSWORD = "plant:p@ss/w0rd"  # a ':', an '@' and a '/' to mask, percent-encoded in the URL
+ENCODED = quote(PASSWORD, safe="")
+
+
+# --------------------------------------------------------------------------- results
+
+
+def _result(i: int, cell: str) -> InspectionResult:
+    """A real result; every third one fails with a defect (rows with and without defects)."""
+    defects = (Defect("missing", (1.0, 2.0, 3.0 + i), (0.5, 0.5, 0.5), 12, -0.25 - i / 1000, "default"),) if i % 3 == 0 else ()
+    dev = DeviationStats(mean=0.001 * i, std=0.01, min=-0.05 - (0.25 if defects else 0.0), max=0.05, p01=-0.04, p99=0.04,
+                         mean_abs=0.02)
+    return InspectionResult(
+        capture=f"{cell}-part-{i:04d}", recipe="cube-30", verdict="fail" if defects else "pass", error=None,
+        timings_s={"total": 0.8}, defects=defects, metadata={"part_id": f"P-{i:05d}", "timestamp": "2026-12-01T08:00:00+00:00"},
+        summary=EvaluationSummary(n_points=1000 + i, deviation_mm=dev, tolerance_mm=(-0.1, 0.1), within_tolerance=0.99,
+                                  out_of_tolerance_points=12 if defects else 0),
+        extras={"line": "L1", "nan": float("nan")},
+    )
+
+
+class Cell:
+    """One inspection cell: its own plugin manager, recipe and OUTDIR, recording through the
+    real hooks (``[plugins.history]`` validated by the recipe loader, then the session's
+    ``on_run_start`` / ``on_result`` / ``on_run_end`` calls)."""
+
+    def __init__(self, outdir: Path, **history):
+        from inspector.manager import create_plugin_manager
+        from inspector.recipe import parse_recipe
+
+        self.pm = create_plugin_manager()
+        self.recipe = parse_recipe({"recipe": {"name": "cube-30"}, "stages": [{"use": "segment.threshold"}],
+                                    "plugins": {"history": history}}, self.pm)
+        self.name = history.get("cell", "")
+        self.out = outdir
+        outdir.mkdir(parents=True, exist_ok=True)
+
+    def __enter__(self):
+        self.pm.on_run_start(self.recipe, self.out, "captures")
+        return self
+
+    def __exit__(self, *exc):
+        self.pm.on_run_end(self.recipe, self.out, SimpleNamespace())
+
+    def inspect(self, i: int) -> None:
+        result = _result(i, self.name)
+        self.pm.on_result(result, self.out / result.capture)
+
+
+def _spool(out: Path) -> int:
+    con = sqlite3.connect(out / "history.sqlite")
+    try:
+        return con.execute("SELECT COUNT(*) FROM spool").fetchone()[0]
+    finally:
+        con.close()
+
+
+def _warnings(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("inspector: warning:")]
+
+
+# --------------------------------------------------------------------------- no server needed
+
+
+def test_a_password_is_masked_in_every_form():
+    from inspector_plugins.history_plant import mask_url, scrub
+
+    assert mask_url(f"postgresql://inspector:{ENCODED}@db.plant:5432/plant") == "postgresql://inspector:***@db.plant:5432/plant"
+    assert mask_url(f"postgresql://inspector:{PASSWORD}@db.plant/plant") == "postgresql://inspector:***@db.plant/plant"  # raw
+    assert mask_url("postgres://db.plant/plant?user=i&password=s3cret&sslmode=require") == \
+        "postgres://db.plant/plant?user=i&password=***&sslmode=require"
+    assert mask_url("postgresql://inspector@db.plant/plant") == "postgresql://inspector@db.plant/plant"
+    url = f"postgresql://inspector:{ENCODED}@db.plant/plant"
+    assert scrub(f"failed for {PASSWORD} and {ENCODED}", url) == "failed for *** and ***"
+    assert ENCODED not in repr(history.HistorySettings(url=url)) and "inspector:***@db.plant" in repr(history.HistorySettings(url=url))
+
+
+def test_the_recipe_table_is_checked_when_the_recipe_loads(pm, tmp_path):
+    from inspector.recipe import parse_recipe
+
+    def load(history):
+        return parse_recipe({"recipe": {"name": "t"}, "stages": [{"use": "segment.threshold"}],
+                             "plugins": {"history": history}}, pm, path=tmp_path / "r.toml")
+
+    assert load({}).plugins["history"].url == ""  # the defaults: the file only (or $INSPECTOR_HISTORY_URL)
+    ok = load({"url": f"postgresql://inspector:{ENCODED}@db.plant:5432/plant", "cell": "cell-7", "retry_s": 0.0})
+    assert ok.plugins["history"].cell == "cell-7"
+    for table, key in (({"url": f"mysql://inspector:{ENCODED}@db/plant"}, "url: expected a PostgreSQL URL"),
+                       ({"url": f"postgresql://inspector:{ENCODED}@db:port/plant"}, "url: not a valid port"),
+                       ({"url": "postgresql://db/plant name"}, "url: a PostgreSQL URL has no spaces"),
+                       ({"cell": "a\nb"}, "cell: at most 64 characters"),
+                       ({"connect_timeout_s": 0}, "connect_timeout_s"),
+                       ({"retry_s": float("nan")}, "retry_s"),
+                       ({"uri": "x"}, "unknown parameter 'uri'")):
+        with pytest.raises(RecipeError) as e:
+            load(table)
+        text = str(e.value)
+        assert text.startswith("r.toml: plugins.history") and key in text and "\n" not in text, text
+        assert PASSWORD not in text and ENCODED not in text
+
+
+#: history.sqlite as the first version wrote it (no extras, cell, uid or spool).
+OLD_SCHEMA = """
+CREATE TABLE inspections (id INTEGER PRIMARY KEY, inspected_at TEXT NOT NULL, capture TEXT NOT NULL, part_id TEXT,
+    triggered_at TEXT, recipe TEXT NOT NULL, verdict TEXT NOT NULL, error TEXT, n_points INTEGER, deviation_mean_mm REAL,
+    deviation_min_mm REAL, deviation_max_mm REAL, n_defects INTEGER NOT NULL, worst_mm REAL, tolerance_lower_mm REAL,
+    tolerance_upper_mm REAL, total_s REAL, result_dir TEXT, metadata TEXT);
+CREATE TABLE defects (inspection_id INTEGER NOT NULL REFERENCES inspections (id), kind TEXT NOT NULL,
+    n_points INTEGER NOT NULL, worst_mm REAL NOT NULL, x REAL, y REAL, z REAL, region TEXT);
+PRAGMA user_version = 1;
+"""
+
+
+def test_an_older_file_gets_the_cell_and_uid_columns(tmp_path):
+    con = sqlite3.connect(tmp_path / "history.sqlite")
+    con.executescript(OLD_SCHEMA)
+    con.execute("INSERT INTO inspections (inspected_at, capture, recipe, verdict, n_defects) VALUES ('t', 'old', 'r', 'pass', 0)")
+    con.commit()
+    con.close()
+    history.record(_result(3, "cell-1"), tmp_path, cell="cell-1")
+    rows = history.read_history(tmp_path)
+    assert [(r["capture"], r["cell"]) for r in rows] == [("old", None), ("cell-1-part-0003", "cell-1")]
+    assert rows[0]["uid"] is None and len(rows[1]["uid"]) == 36
+    assert [r["capture"] for r in history.read_history(tmp_path, cell="cell-1")] == ["cell-1-part-0003"]
+    assert history.spooled(tmp_path) == 0  # no plant database: nothing waits
+
+
+def test_the_plugin_loads_no_database_driver():
+    code = ("import sys\nfrom inspector.manager import create_plugin_manager\ncreate_plugin_manager()\n"
+            "import inspector_plugins.history\nprint([m for m in sys.modules if m.split('.')[0] == 'psycopg'])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_database_that_does_not_answer_costs_one_warning_and_the_rows_wait(tmp_path, capfd):
+    pytest.importorskip("psycopg", reason="psycopg is not installed (requirements.lock pins it)")
+    with socket.socket() as s:  # a loopback port nobody listens on: refused at once
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    url = f"postgresql://inspector:{ENCODED}@127.0.0.1:{port}/plant"
+    with Cell(tmp_path / "out", url=url, cell="cell-9", retry_s=0.0) as cell:
+        for i in range(3):
+            cell.inspect(i)
+    err = capfd.readouterr().err
+    warnings = _warnings(err)
+    assert len(warnings) == 1, err
+    assert warnings[0].startswith(f"inspector: warning: history: plant database postgresql://inspector:***@127.0.0.1:{port}/plant: ")
+    assert "1 inspection waits in the spool of" in warnings[0]  # at the first row; the others follow silently
+    assert PASSWORD not in err and ENCODED not in err
+    assert _spool(tmp_path / "out") == 3 and len(history.read_history(tmp_path / "out")) == 3
+    assert main(["history", str(tmp_path / "out")]) == 0
+    assert "3 of them wait in the spool" in capfd.readouterr().out
+    assert main(["history", str(tmp_path / "out"), "--send", "--url", url]) == 3
+    err = capfd.readouterr().err
+    assert err.startswith(f"inspector: error: plant database postgresql://inspector:***@127.0.0.1:{port}/plant: ")
+    assert err.strip().endswith("3 inspections stay in the spool") and PASSWORD not in err and ENCODED not in err
+
+
+def test_reading_without_outdir_needs_a_valid_url(capfd, monkeypatch):
+    monkeypatch.delenv("INSPECTOR_HISTORY_URL", raising=False)
+    assert main(["history"]) == 2
+    assert "give OUTDIR, or the plant database with --url URL or $INSPECTOR_HISTORY_URL" in capfd.readouterr().err
+    monkeypatch.setenv("INSPECTOR_HISTORY_URL", f"mysql://inspector:{ENCODED}@db/plant")
+    assert main(["history"]) == 2
+    err = capfd.readouterr().err
+    assert err.startswith("inspector: error: INSPECTOR_HISTORY_URL: expected a PostgreSQL URL") and ENCODED not in err
+
+
+# --------------------------------------------------------------------------- a real server
+
+
+def _pg_bindir() -> Path | None:
+    found = shutil.which("initdb")
+    if found:
+        return Path(found).parent
+    versions = [p for p in Path("/usr/lib/postgresql").glob("*/bin/initdb") if p.parts[-3].isdigit()]
+    return max(versions, key=lambda p: int(p.parts[-3])).parent if versions else None
+
+
+class PgServer:
+    """A throw-away PostgreSQL cluster on 127.0.0.1:``port``, run as an unprivileged user."""
+
+    def __init__(self, bindir: Path, root: Path, user: str | None):
+        self.bindir, self.root, self.user = bindir, root, user
+        self.data, self.log = root / "data", root / "server.log"
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            self.port = s.getsockname()[1]
+
+    def _run(self, *args: str) -> None:
+        cmd = [str(self.bindir / args[0]), *args[1:]]
+        if self.user is not None:  # as root: postgres refuses to run as root
+            runuser = shutil.which("runuser")
+            cmd = [runuser, "-u", self.user, "--", *cmd] if runuser else ["su", "-s", "/bin/sh", self.user, "-c", shlex.join(cmd)]
+        done = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+        if done.returncode != 0:
+            log = self.log.read_text(errors="replace")[-2000:] if self.log.exists() else ""
+            raise RuntimeError(f"{shlex.join(cmd)}: {done.returncode}\n{done.stdout}\n{done.stderr}\n{log}")
+
+    def init(self) -> None:
+        pwfile = self.root / "pw"
+        pwfile.write_text(PASSWORD + "\n")
+        if self.user is not None:
+            os.chown(pwfile, pwd.getpwnam(self.user).pw_uid, -1)
+        self._run("initdb", "-D", str(self.data), "-U", "inspector", f"--pwfile={pwfile}", "--auth-local=trust",
+                  "--auth-host=scram-sha-256", "-E", "UTF8", "--locale=C", "--no-sync")
+        pwfile.unlink()
+
+    def start(self) -> None:
+        opts = f"-c listen_addresses=127.0.0.1 -p {self.port} -k {self.root} -c fsync=off -c full_page_writes=off"
+        self._run("pg_ctl", "-D", str(self.data), "-l", str(self.log), "-w", "-t", "60", "-o", opts, "start")
+
+    def stop(self, mode: str = "fast") -> None:
+        self._run("pg_ctl", "-D", str(self.data), "-m", mode, "-w", "-t", "60", "stop")
+
+    def url(self, database: str) -> str:
+        return f"postgresql://inspector:{ENCODED}@127.0.0.1:{self.port}/{database}"
+
+
+@pytest.fixture(scope="session")
+def pg_server():
+    pytest.importorskip("psycopg", reason="psycopg is not installed (requirements.lock pins it)")
+    bindir = _pg_bindir()
+    if bindir is None:
+        pytest.skip("PostgreSQL server not found (initdb): install Debian's postgresql package (make does, as root)")
+    user = None
+    if os.geteuid() == 0:
+        try:
+            pwd.getpwnam("nobody")
+        except KeyError:
+            pytest.skip("running as root without a 'nobody' user to run PostgreSQL as")
+        user = "nobody"
+    root = Path(tempfile.mkdtemp(prefix="inspector-pg-"))  # in /tmp: reachable by 'nobody', unlike pytest's folders
+    if user is not None:
+        os.chown(root, pwd.getpwnam(user).pw_uid, pwd.getpwnam(user).pw_gid)
+    server = PgServer(bindir, root, user)
+    try:
+        server.init()
+        server.start()
+        yield server
+    finally:
+        try:
+            server.stop("immediate")
+        except RuntimeError:
+            pass  # not running
+        shutil.rmtree(root, ignore_errors=True)
+
+
+@pytest.fixture
+def plant(pg_server, request):
+    """A fresh database of the test server: (its URL, a query function)."""
+    import psycopg
+
+    name = "t_" + request.node.name.removeprefix("test_")[:40].lower()
+    with psycopg.connect(pg_server.url("postgres"), autocommit=True) as con:
+        con.execute(f'DROP DATABASE IF EXISTS "{name}"')
+        con.execute(f'CREATE DATABASE "{name}"')
+    url = pg_server.url(name)
+
+    def query(sql: str, *params):
+        with psycopg.connect(url) as con:
+            return con.execute(sql, params).fetchall()
+
+    return url, query
+
+
+def test_two_cells_writing_at_once_lose_and_double_nothing(plant, tmp_path, capfd):
+    url, query = plant
+    n = 200
+    errors: list[BaseException] = []
+
+    def run(cell: Cell) -> None:  # a cell of its own: its plugin manager, OUTDIR, connection
+        try:
+            with cell:
+                for i in range(n):
+                    cell.inspect(i)
+        except BaseException as e:  # noqa: BLE001 - reported by the test
+            errors.append(e)
+
+    cells = [Cell(tmp_path / name, url=url, cell=name, retry_s=0.0) for name in ("cell-a", "cell-b")]
+    threads = [threading.Thread(target=run, args=(cell,)) for cell in cells]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert not errors
+    err = capfd.readouterr().err
+    assert "warning" not in err, err
+    assert query("SELECT cell, COUNT(*), COUNT(DISTINCT capture) FROM inspections GROUP BY cell ORDER BY cell") == \
+        [("cell-a", n, n), ("cell-b", n, n)]
+    assert query("SELECT COUNT(DISTINCT uid) FROM inspections") == [(2 * n,)]
+    n_defects = 2 * len([i for i in range(n) if i % 3 == 0])
+    assert query("SELECT COUNT(*) FROM defects") == [(n_defects,)]
+    assert query("SELECT COUNT(*) FROM defects d JOIN inspections i ON i.id = d.inspection_id"
+                 " WHERE i.n_defects = 1 AND d.worst_mm = i.worst_mm") == [(n_defects,)]
+    for name in ("cell-a", "cell-b"):
+        local = history.read_history(tmp_path / name)
+        assert _spool(tmp_path / name) == 0 and len(local) == n
+        pg = query("SELECT inspected_at, capture, part_id, verdict, n_points, deviation_min_mm, worst_mm, metadata,"
+                   " extras, uid FROM inspections WHERE cell = %s ORDER BY id", name)
+        assert pg == [(r["inspected_at"], r["capture"], r["part_id"], r["verdict"], r["n_points"], r["deviation_min_mm"],
+                       r["worst_mm"], r["metadata"], r["extras"], r["uid"]) for r in local]  # the same rows, in order
+    # `inspector history` on the plant database: every cell's, or one cell's
+    assert main(["history", "--url", url, "--cell", "cell-b", "--last", "3", "--json"]) == 0
+    rows = json.loads(capfd.readouterr().out)
+    assert [r["capture"] for r in rows] == [f"cell-b-part-{i:04d}" for i in range(n - 3, n)]
+    assert set(rows[0]) == set(history.read_history(tmp_path / "cell-b")[0])
+    assert main(["history", "--url", url]) == 0
+    out = capfd.readouterr()
+    assert out.out.strip().splitlines()[-1].startswith(f"{2 * n} inspections: ") and "cell-a" in out.out
+    assert PASSWORD not in out.out + out.err and ENCODED not in out.out + out.err
+
+
+def test_a_server_stopped_and_restarted_during_a_run_gets_every_row_once(pg_server, plant, tmp_path, capfd):
+    from inspector_plugins.history import flush_spool
+    from inspector_plugins.history_plant import PlantDatabase
+
+    url, query = plant
+    out = tmp_path / "cell-c"
+    with Cell(out, url=url, cell="cell-c", retry_s=0.0) as cell:
+        for i in range(10):
+            cell.inspect(i)
+        assert query("SELECT COUNT(*) FROM inspections") == [(10,)]
+        pg_server.stop("fast")
+        try:
+            for i in range(10, 25):
+                cell.inspect(i)
+            assert _spool(out) == 15
+            err = capfd.readouterr().err
+            warnings = _warnings(err)
+            assert len(warnings) == 1, err  # one line for the outage, not one per row
+            assert f"plant database postgresql://inspector:***@127.0.0.1:{pg_server.port}/" in warnings[0]
+            assert "inspections wait in the spool of" in warnings[0] or "inspection waits in the spool of" in warnings[0] and PASSWORD not in err and ENCODED not in err
+        finally:
+            pg_server.start()
+        for i in range(25, 35):
+            cell.inspect(i)
+        err = capfd.readouterr().err
+        assert _warnings(err) == [] and "answers again; 16 spooled inspections sent" in err, err
+        # a restart between two records: the stale connection is replaced, no warning, nothing spooled
+        pg_server.stop("fast")
+        pg_server.start()
+        cell.inspect(35)
+        assert _warnings(capfd.readouterr().err) == [] and _spool(out) == 0
+    expected = [f"cell-c-part-{i:04d}" for i in range(36)]
+    assert [c for (c,) in query("SELECT capture FROM inspections ORDER BY id")] == expected  # oldest first, once
+    n_defects = len([i for i in range(36) if i % 3 == 0])
+    assert query("SELECT COUNT(*), COUNT(DISTINCT uid) FROM inspections") == [(36, 36)]
+    assert query("SELECT COUNT(*) FROM defects") == [(n_defects,)]
+    # the spool flushed again (a crash after the server's commit, before the spool's delete): no row doubled
+    con = sqlite3.connect(out / "history.sqlite")
+    con.execute("INSERT INTO spool (inspection_id) SELECT id FROM inspections")
+    con.commit()
+    con.close()
+    plant_db = PlantDatabase(url)
+    try:
+        assert flush_spool(out, plant_db) == 36
+    finally:
+        plant_db.close()
+    assert _spool(out) == 0
+    assert query("SELECT COUNT(*), COUNT(DISTINCT uid) FROM inspections") == [(36, 36)]
+    assert query("SELECT COUNT(*) FROM defects") == [(n_defects,)]
+
+
+def test_rows_spooled_by_an_earlier_run_are_sent_by_the_next_or_by_send(pg_server, plant, tmp_path, capfd, monkeypatch):
+    url, query = plant
+    out = tmp_path / "cell-d"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        dead = f"postgresql://inspector:{ENCODED}@127.0.0.1:{s.getsockname()[1]}/plant"
+    with Cell(out, url=dead, cell="cell-d", retry_s=0.0) as cell:
+        for i in range(4):
+            cell.inspect(i)
+    assert _spool(out) == 4 and len(_warnings(capfd.readouterr().err)) == 1
+    assert main(["history", str(out), "--send", "--url", url]) == 0
+    assert capfd.readouterr().out.strip() == f"sent 4 spooled inspections to postgresql://inspector:***@127.0.0.1:{pg_server.port}/{url.rsplit('/', 1)[1]}"
+    with Cell(out, url=dead, cell="cell-d", retry_s=0.0) as cell:
+        cell.inspect(4)
+    monkeypatch.setenv("INSPECTOR_HISTORY_URL", url)  # the recipe gives no URL: the environment's
+    with Cell(out, cell="cell-d"):
+        pass  # the run's start sends what waits
+    assert _spool(out) == 0
+    assert [c for (c,) in query("SELECT capture FROM inspections ORDER BY id")] == [f"cell-d-part-{i:04d}" for i in range(5)]
