@@ -533,6 +533,11 @@ def _print_report(doc: dict[str, Any]) -> None:
     rv = t["carve_ratio"]["value"]
     print(f"    carve ratio >= {CARVE_RATIO_TARGET:g}x:     {_word(t['carve_ratio']['met'])}"
           + (f" ({rv:.1f}x: Open3D {c['open3d_voxel_mm']} mm vs ours {c['carve_voxel_mm']} mm)" if rv is not None and c else ""))
+    for key, label in (("cold_start", f"new process -> verdict <= {COLD_START_TARGET_S:g} s"),
+                       ("first_run", f"first compile <= {FIRST_RUN_TARGET_S:g} s")):
+        got = t.get(key) or {}
+        v = got.get("value_s")
+        print(f"    {label}: {_word(got.get('met'))}" + (f" ({v:.2f} s)" if v is not None else ""))
 
 
 # --------------------------------------------------------------------------- CLI
