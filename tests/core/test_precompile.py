@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 
 def _helper(x):
     return x * 2
@@ -40,8 +42,8 @@ def test_precompile_inspects_the_small_captures_with_the_builtin_recipes(tmp_pat
     seen = {}
     real = precompile.precompile
 
-    def spy(work, say=print):
-        seen.update(real(work, say))
+    def spy(work, say=print, **kw):
+        seen.update(real(work, say, **kw))
         return seen
 
     monkeypatch.setattr(precompile, "precompile", spy)
@@ -53,3 +55,24 @@ def test_precompile_inspects_the_small_captures_with_the_builtin_recipes(tmp_pat
     assert lines[0].startswith("Compiling the inspection kernels")
     assert lines[-1].startswith("Kernels ready in ") and lines[-1].endswith("the small captures: good pass, notched fail).")
     assert "Traceback" not in out.err
+    # the kernel list the install compiles ahead is what this run used (else: --record)
+    from inspector.precompile import SIGNATURES, _argument_types, _dispatcher
+
+    entries = json.loads(SIGNATURES.read_text(encoding="utf-8"))
+    assert {e["name"] for e in entries} >= {"_finest_kernel", "_select_kernel", "_march_squares"}
+    for e in entries:
+        disp = _dispatcher(e["module"], e["name"])
+        assert disp is not None, e
+        assert _argument_types(e["args"]) in [tuple(s) for s in disp.signatures], e
+
+
+def test_groups_are_balanced_and_a_bad_entry_is_one_line():
+    from inspector.precompile import compile_listed, split
+
+    entries = [{"module": "m", "name": n, "seconds": s} for n, s in (("a", 20), ("b", 19), ("c", 9), ("d", 8), ("e", 2))]
+    groups = split(entries, 2)
+    assert sorted(sum(e["seconds"] for e in g) for g in groups) == [28, 30]
+    lines: list[str] = []
+    problems = compile_listed([{"module": "inspector.kernels.carving_jit", "name": "nope", "args": "(int64,)"}],
+                              lines.append)
+    assert problems == ["inspector.kernels.carving_jit.nope: LookupError: no such kernel"] and lines == []
