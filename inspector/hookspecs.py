@@ -84,8 +84,8 @@ def inspector_register_commands(registry: CommandRegistry) -> None:
         one of the core's (``run``, ``plugins``, ``plugin``, ``recipe``, ``report``,
         ``roles``). ``CommandSpec(name, add_parser, run, doc)``: ``add_parser(subparsers)``
         adds the argparse sub-parser, ``run(args) -> int`` runs it. ``bench``,
-        ``experiment``, ``capture``, ``history``, ``import``, ``simulate``, ``demo`` and
-        ``gui`` are registered this way by the built-in plugins.
+        ``experiment``, ``feasibility``, ``capture``, ``history``, ``import``, ``simulate``,
+        ``demo``, ``serve`` and ``gui`` are registered this way by the built-in plugins.
     """
 
 
