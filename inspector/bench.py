@@ -721,11 +721,7 @@ def run(args: argparse.Namespace) -> int:
                       f"camera {acquisition['camera_median_ms']:.1f} + driver {acquisition['overhead_median_ms']:.1f} ms), "
                       f"{acquisition['ok']} ok / {acquisition['failed']} failed")
     if args.json:
-        p = Path(args.json)
-        if p.parent != Path(""):
-            p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n", encoding="utf-8")
-        say(f"\n  figures written to {p}")
+        say(f"\n  figures written to {write_figures(args.json, doc)}")
     measured = [t["met"] for t in doc["targets"].values() if t["met"] is not None]
     return 0 if all(measured) else 1
 
@@ -832,11 +828,7 @@ def dask_throughput(args: argparse.Namespace) -> int:
         f"{60 / doc['client_record_s']:.0f} captures/min); a worker reads {doc['capture']['bytes'] / 1e6:.1f} MB per capture "
         f"and sends back {doc['result_bytes'] / 1e6:.2f} MB")
     if args.json:
-        p = Path(args.json)
-        if p.parent != Path(""):
-            p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n", encoding="utf-8")
-        say(f"  figures written to {p}")
+        say(f"  figures written to {write_figures(args.json, doc)}")
     return 3 if failed else 0
 
 
@@ -866,6 +858,15 @@ def acquisition_latency(n: int, triggers: int, progress=lambda s: None) -> dict[
                 stats = client.request({"cmd": "latency", "triggers": triggers, "warmup": 3}, timeout=600)
     keys = ("cameras", "ok", "failed", "median_ms", "p10_ms", "p90_ms", "min_ms", "max_ms", "camera_median_ms", "overhead_median_ms")
     return {k: stats.get(k) for k in keys}
+
+
+def write_figures(path: str | Path, doc: Any) -> Path:
+    """Write a benchmark's figures as indented JSON (numpy values as lists and numbers),
+    creating the folder; returns the path."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    p.write_text(json.dumps(doc, indent=2, default=_json_default) + "\n", encoding="utf-8")
+    return p
 
 
 def _json_default(o: Any) -> Any:

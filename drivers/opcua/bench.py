@@ -257,11 +257,9 @@ def run_opcua_bench(args: argparse.Namespace) -> int:
               f"{'MET' if doc['target']['met'] else 'NOT MET'}")
         print(f"    load average {doc['machine']['load_before']} -> {doc['machine']['load_after']}")
     if args.json:
-        p = Path(args.json)
-        if p.parent != Path(""):
-            p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps({"opcua": doc, "served": srv, "headless": head}, indent=2) + "\n", encoding="utf-8")
-        say(f"\n  figures written to {p}")
+        from inspector.bench import write_figures
+
+        say(f"\n  figures written to {write_figures(args.json, {'opcua': doc, 'served': srv, 'headless': head})}")
     if bad or wrong:
         print(f"inspector: error: bench --opcua: {len(bad)} inspections failed, {len(wrong)} results for another "
               f"part{': ' + str(doc['errors'][0]) if doc['errors'] else ''}", file=sys.stderr)

@@ -45,7 +45,6 @@ import argparse
 import dataclasses
 from array import array
 import gc
-import json
 import math
 import statistics
 import sys
@@ -539,11 +538,7 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
     if not args.quiet:
         _print_report(doc)
     if args.json:
-        p = Path(args.json)
-        if p.parent != Path(""):
-            p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_text(json.dumps(doc, indent=2, default=bench._json_default) + "\n", encoding="utf-8")
-        say(f"\n  figures written to {p}")
+        say(f"\n  figures written to {bench.write_figures(args.json, doc)}")
     return 0
 
 
