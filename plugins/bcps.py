@@ -19,7 +19,7 @@ from inspector.kernels import bcps as bk
 from inspector.kernels.threads import map_threads
 from inspector.kernels.prior import SizePrior, fit_size_prior
 from inspector.kernels.robust import tukey_loss
-from inspector.model import Alignment, BcpsPoints
+from inspector.model import Alignment, BcpsPoints, PoseConfidence
 from inspector.params import param
 from inspector.pipeline import InspectionContext
 from inspector.registry import StageRegistry, StageSpec
@@ -95,27 +95,16 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
 
     def sd_fn(X: np.ndarray) -> np.ndarray:
         return prior.scale * ref.distance(X @ inv[:3, :3].T + inv[:3, 3])
-    recon = ctx.need("reconstruction", "bcps")
     # Hard-edged silhouettes are less exact than the hull tolerance assumes: a ray's true
     # point can lie a few tenths of a pixel outside them (shaft, binary images: 10 points
     # 1-1.8 px off in bulges at 0.2 px, a false reject).
     accept = p.accept_px + max(s.edge_px for s in sils)
     out = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
-    ranges = cache.setdefault("ranges", {})
     stride = cache.get("stride", 1)
     for i, (cam, sil) in enumerate(zip(rig.cameras, sils)):
         if len(sil.contour) == 0:
             continue
-        if i not in ranges:
-            origin, dirs = cam.rays(sil.contour)
-            # Only where the ray passes near the reconstruction (the hull is conservative).
-            # A pose update can move a grazing ray's optimum far along it: every pass
-            # searches the whole range.
-            ranges[i] = (origin, dirs, bk.ray_ranges(
-                cam, sil.contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm),
-                compiled=cache.get("stack") is not None,
-            ))
-        origin, dirs, (r0, r1) = ranges[i]
+        origin, dirs, (r0, r1) = _contour_rays(ctx, cache, i)
         sub = slice(None, None, stride)
         pts, dev, seg, ok = bk.select_on_rays(
             origin, dirs[sub], views, i, sd_fn, bounds, stack=cache.get("stack"), step_mm=p.step_mm,
@@ -130,6 +119,25 @@ def select_rays(ctx: InspectionContext, pose: np.ndarray, p: RayParams, cache: d
         out["pixel"].append(sil.contour[sub][ok])
         out["segment"].append(seg[ok])
     return _assemble(out, "ray")
+
+
+def _contour_rays(ctx: InspectionContext, cache: dict, i: int) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """Camera ``i``'s rays through its sub-pixel contour points: origin (3,), directions
+    (M, 3) and the depth range (t0, t1) (M,) each can meet the reconstruction in (cached)."""
+    ranges = cache.setdefault("ranges", {})
+    if i not in ranges:
+        cam = ctx.capture.rig.cameras[i]
+        contour = ctx.need("silhouettes", "bcps")[i].contour
+        recon = ctx.need("reconstruction", "bcps")
+        origin, dirs = cam.rays(contour)
+        # Only where the ray passes near the reconstruction (the hull is conservative).
+        # A pose update can move a grazing ray's optimum far along it: every pass
+        # searches the whole range.
+        ranges[i] = (origin, dirs, bk.ray_ranges(
+            cam, contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm),
+            compiled=cache.get("stack") is not None,
+        ))
+    return ranges[i]
 
 
 def _assemble(out: dict[str, list[np.ndarray]], method: str) -> BcpsPoints:
@@ -168,31 +176,50 @@ def select_surface(ctx: InspectionContext, pose: np.ndarray, p: SurfaceParams, c
 
 
 def _size_prior(ctx: InspectionContext, sel: BcpsPoints, pose: np.ndarray, p: RayParams,
-                start: np.ndarray | None = None) -> SizePrior:
-    """The part's best-fit size model, from a first selection (see :mod:`inspector.kernels.prior`)."""
+                start: np.ndarray | None = None, axis: np.ndarray | None = None) -> SizePrior:
+    """The part's best-fit size model, from a first selection (see :mod:`inspector.kernels.prior`).
+
+    ``axis`` (3,), reference frame: an axis of near-symmetry whose turn the silhouettes
+    decide; the fit's rotation loses its component about it (the points pin that turn so
+    weakly that the fit wanders: a keyed shaft at 0.98 on 8 cameras, 5 degrees).
+    """
     ref = ctx.need("reference", "bcps")
     V = ref.vertices
-    return fit_size_prior(ref.to_reference_frame(sel.points, pose), ref.distance,
-                          centre=0.5 * (V.min(axis=0) + V.max(axis=0)), robust_mm=p.refine_robust_mm,
-                          start_mm=p.refine_start_mm, start=start)
+    prior = fit_size_prior(ref.to_reference_frame(sel.points, pose), ref.distance,
+                           centre=0.5 * (V.min(axis=0) + V.max(axis=0)), robust_mm=p.refine_robust_mm,
+                           start_mm=p.refine_start_mm, start=start)
+    if axis is None or prior.is_identity:
+        return prior
+    w = np.asarray(prior.rotation, float)
+    a = np.asarray(axis, float)
+    q = w - (w @ a) * a
+    return dataclasses.replace(prior, rotation=(float(q[0]), float(q[1]), float(q[2])))
 
 
 #: Largest size error (relative) the pose search must tolerate.
 _SIZE_RANGE = 0.035
-#: The turn search: only where the hull allows turns beyond this either way (degrees);
-#: candidates this far apart (degrees), at most this many; each judged on every n-th
-#: contour ray; the winner must lower the mean loss by this share of the pose's and by this
-#: much in all (fraction of points).
-_OPEN_DEG = 10.0
-_SEARCH_STEP_DEG = 15.0
-_SEARCH_TURNS = 24
-_SEARCH_STRIDE = 9
-_SEARCH_GAIN = 0.25
-_SEARCH_MARGIN = 0.0003
 #: A re-fit that turns the pose by more than this (degrees) is followed by a new selection
 #: and re-fit, at most this many times in all.
 _RESELECT_DEG = 0.05
 _ATTEMPTS = 4
+#: The turn about an axis of near-symmetry, judged on the silhouettes: Tukey cutoff of the
+#: contour rays' residuals (mm); the scan's step, about (degrees; its cutoff is as wide as the
+#: outermost point moves in a step); every n-th contour ray; the coarse (search) and fine
+#: (polish) sampling along the rays (step mm, refinement levels); the basin search's step
+#: (degrees) and how many of the scan's lowest minima it searches; a turn beyond this
+#: (degrees) is settled again by the points; the final polish's half-width (degrees) and
+#: every Brent search's tolerance (degrees).
+_SIL_CUTOFF_MM = 0.1
+_SIL_STEP_DEG = 5.0
+_SIL_STRIDE = 9
+_SIL_FINE_STRIDE = 3
+_SIL_COARSE = (0.5, 2)
+_SIL_FINE = (0.25, 3)
+_SIL_LOCAL_DEG = 1.0
+_SIL_BASINS = 2
+_SIL_RESETTLE_DEG = 3.0
+_SIL_POLISH_DEG = 1.5
+_SIL_XATOL_DEG = 0.02
 
 
 def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -201,57 +228,202 @@ def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def _robust_loss(sel: BcpsPoints, cutoff_mm: float) -> float:
-    """Mean Tukey loss (0..1) of a selection's deviations about their median."""
-    return float(np.mean(tukey_loss(sel.deviation - np.median(sel.deviation), cutoff_mm)))
+class _TurnJudge:
+    """The silhouette loss of the reference turned about its axis, under one placement.
 
+    The loss of a turn is the mean Tukey loss (0..1) at ``_SIL_CUTOFF_MM`` of the silhouette
+    residuals (:func:`~inspector.kernels.bcps.ray_min_distance`) of every ``stride``-th
+    contour ray against the reference placed by ``pose`` under ``prior`` and turned about its
+    own axis (:func:`_turned`), about the residuals' median at the judged turn. The residuals
+    are what the silhouettes say about a pose before any point is selected: for the sized
+    reference at the part's pose every contour ray grazes it (keyed shaft at 0.98, 16
+    cameras: 1st-99th percentile -5 to +6 um). The BCPS selection cannot judge a turn as
+    well: each ray's point may lie anywhere on its hull segment (3.5 mm median), so it
+    follows the reference it is selected against.
 
-def _turn_search(ctx: InspectionContext, pose: np.ndarray, scan, p, cache: dict) -> np.ndarray | None:
-    """A better pose among the turns about the reference's axis that its visual hull allows,
-    each judged by its own (sparse) selection; None when the pose stays.
-
-    Only for a reference with an axis of near-symmetry whose hull leaves more than
-    ``_OPEN_DEG`` of turn either way. Candidates every ``_SEARCH_STEP_DEG`` (at most
-    ``_SEARCH_TURNS``), skipping the reference's own symmetries, then half a step either
-    side of the best; the winner must fit clearly better than the pose (its mean robust loss
-    lower by ``_SEARCH_GAIN`` of the pose's and by ``_SEARCH_MARGIN``). ``scan``: the
-    :class:`~inspector.kernels.registration.AxisScan` about ``pose`` (with hull points).
-
-    Measured on a keyed shaft (16 cameras, grey): at the true pose the loss at 0.3 mm is
-    0.46e-3, 5 / 10 / 20 / 45 / 180 degrees off 1.5 / 2.6 / 4.7 / 9.6 / 2.6e-3 (every ninth
-    ray, 10 um steps): the keyway moves about 55 contour points by 0.1 mm.
+    Only the rays through the reference's :class:`~inspector.kernels.registration.TurnZone`
+    are evaluated at each turn; the others add the same loss at every turn (evaluated once).
     """
-    if scan is None:
-        return None
-    inside = scan.inside_hull & scan.distinct(_OPEN_DEG)
-    if not inside.any():
-        return None
-    k = max(1, int(np.ceil(len(scan.angles_deg) * _SEARCH_STEP_DEG / 360.0)))
-    angles = list(scan.angles_deg[inside][::k][:_SEARCH_TURNS])
-    cutoff = 3.0 * p.refine_robust_mm
-    saved = {key: cache.get(key) for key in ("stride", "refine_levels")}
-    cache["stride"], cache["refine_levels"] = _SEARCH_STRIDE, min(2, getattr(p, "refine_levels", 0))
 
-    def loss(angle: float) -> float:
-        return _robust_loss(cache["select"](ctx, pose @ _turn(scan.axis, scan.centre, angle), p, cache), cutoff)
+    def __init__(self, ctx: InspectionContext, cache: dict, pose: np.ndarray, prior: SizePrior, axis: np.ndarray,
+                 centre: np.ndarray, stride: int, fine: bool) -> None:
+        from inspector.kernels.registration import turn_zone
 
-    try:
-        base = loss(0.0)
-        losses = [loss(a) for a in angles]
-        best = int(np.argmin(losses))
-        for a in (angles[best] - _SEARCH_STEP_DEG / 2, angles[best] + _SEARCH_STEP_DEG / 2):
-            angles.append(a)
-            losses.append(loss(a))
-    finally:
-        for key, v in saved.items():
-            if v is None:
-                cache.pop(key, None)
-            else:
-                cache[key] = v
-    best = int(np.argmin(losses))
-    if losses[best] < (1.0 - _SEARCH_GAIN) * base and losses[best] < base - _SEARCH_MARGIN:
-        return pose @ _turn(scan.axis, scan.centre, angles[best])
-    return None
+        ref = ctx.need("reference", "bcps")
+        if "zone" not in cache:
+            cache["zone"] = turn_zone(ref.distance.near, ref.vertices, axis, centre)
+        zone = cache["zone"]
+        self.pose, self.prior, self.axis, self.centre = pose, prior, np.asarray(axis, float), np.asarray(centre, float)
+        self._ref, self._fine = ref, fine
+        self._place = prior.placement(pose)
+        inv = np.linalg.inv(self._place)
+        self._rays, rest = [], []
+        n = 0
+        for i, sil in enumerate(ctx.need("silhouettes", "bcps")):
+            if len(sil.contour) == 0:
+                continue
+            origin, dirs, (r0, r1) = _contour_rays(ctx, cache, i)
+            sub = slice(None, None, stride)
+            d, a, b = dirs[sub], r0[sub], r1[sub]
+            ok = a <= b
+            n += int(ok.sum())
+            act = ok & self._crosses(zone, origin, d, a, b, inv)
+            self._rays.append((origin, d[act], a[act], b[act]))
+            rest.append((origin, d[ok & ~act], a[ok & ~act], b[ok & ~act]))
+        self.n = n
+        # The median and the turn-independent part, from the rays left out.
+        r_act = self._residuals(np.eye(4))
+        r_rest = np.concatenate([self._min_distance(inv, *ray) for ray in rest]) if rest else np.zeros(0)
+        r_all = np.concatenate([r_act, r_rest])
+        r_all = r_all[np.isfinite(r_all)]
+        self.median = float(np.median(r_all)) if len(r_all) else 0.0
+        self._rest = r_rest[np.isfinite(r_rest)] - self.median
+
+    @staticmethod
+    def _crosses(zone, origin: np.ndarray, dirs: np.ndarray, t0: np.ndarray, t1: np.ndarray, inv: np.ndarray) -> np.ndarray:
+        """(M,) bool: rays with a point (every 0.5 mm of their range) in the zone's variable cells."""
+        if not len(dirs):
+            return np.zeros(0, bool)
+        top = np.where(t0 <= t1, t1, t0)
+        n = int(np.ceil(float(np.max(top - t0)) / 0.5)) + 1
+        tt = np.minimum(t0[:, None] + 0.5 * np.arange(n)[None, :], top[:, None])
+        X = (origin + tt[..., None] * dirs[:, None, :]).reshape(-1, 3)
+        Y = X @ inv[:3, :3].T + inv[:3, 3]
+        # inv maps the world into the nominal reference's frame (before any size model): the zone's.
+        return zone.hits(Y).reshape(tt.shape).any(axis=1)
+
+    def _min_distance(self, inv: np.ndarray, origin: np.ndarray, dirs: np.ndarray, t0: np.ndarray,
+                      t1: np.ndarray) -> np.ndarray:
+        index, scale = self._ref.distance.near, self.prior.scale
+
+        def sd(X: np.ndarray) -> np.ndarray:
+            return scale * index(X @ inv[:3, :3].T + inv[:3, 3])
+
+        step, levels = _SIL_FINE if self._fine else _SIL_COARSE
+        return bk.ray_min_distance(origin, dirs, t0, t1, sd, step_mm=step, levels=levels)
+
+    def _residuals(self, turn: np.ndarray) -> np.ndarray:
+        inv = np.linalg.inv(self._place @ turn)
+        res = [self._min_distance(inv, *ray) for ray in self._rays]
+        return np.concatenate(res) if res else np.zeros(0)
+
+    def loss(self, angle_deg: float, cutoff_mm: float = _SIL_CUTOFF_MM) -> float:
+        """Mean loss (0..1) of the rays at the turn ``angle_deg`` about the axis, Tukey cutoff
+        ``cutoff_mm``."""
+        r = self._residuals(_turn(self.axis, self.centre, angle_deg))
+        r = r[np.isfinite(r)] - self.median
+        return float(np.sum(tukey_loss(r, cutoff_mm)) + np.sum(tukey_loss(self._rest, cutoff_mm))) / max(self.n, 1)
+
+    def turned(self, angle_deg: float) -> np.ndarray:
+        """The judged pose turned by ``angle_deg`` (:func:`_turned`)."""
+        return _turned(self.pose, self.prior, self.axis, self.centre, angle_deg)
+
+
+def _silhouette_scan(judge: _TurnJudge, scan):
+    """``scan``'s turns about the axis (as turns of the reference; the scan's angles turn the
+    points), about every ``_SIL_STEP_DEG``, judged on the
+    silhouettes at a cutoff as wide as the outermost point moves between two of them (at 0.1
+    mm a flat's basin is +-0.6 degree wide on a Ø20 shaft, and a grid would step over it):
+    an :class:`~inspector.kernels.registration.AxisScan` whose cost is :meth:`_TurnJudge.loss`
+    (``inf`` for a turn that leaves the visual hull, the pose's own for a symmetry of the
+    reference) and whose ``n_points`` are the contour points it stands for."""
+    k = max(1, int(round(len(scan.angles_deg) * _SIL_STEP_DEG / 360.0)))
+    idx = np.arange(0, len(scan.angles_deg), k)
+    # The scan turns the points; the reference turns the other way (0 stays first).
+    turns = (-scan.angles_deg[idx]) % 360.0
+    order = np.argsort(turns, kind="stable")
+    idx, turns = idx[order], turns[order]
+    wide = max(_SIL_CUTOFF_MM, scan.radius_mm * np.radians(360.0 / len(scan.angles_deg) * k))
+    cost = np.full(len(idx), np.inf)
+    for j, i in enumerate(idx):
+        if j == 0 or (scan.inside_hull[i] and not scan.symmetric[i]):
+            cost[j] = judge.loss(float(turns[j]), wide)
+    cost[scan.symmetric[idx]] = cost[0]
+    return dataclasses.replace(scan, angles_deg=turns, cost=cost, moved=scan.moved[idx],
+                               poke=None if scan.poke is None else scan.poke[idx], cutoff_mm=wide,
+                               n_points=judge.n * _SIL_STRIDE)
+
+
+def _basins(sil) -> list[float]:
+    """The turns (degrees, -180..180) of the scan's lowest local minima, the pose's own
+    turn (0) whenever it is one, none near another symmetry of the reference."""
+    a = (sil.angles_deg + 180.0) % 360.0 - 180.0
+    sym = a[sil.symmetric & (np.abs(a) > 1e-9)]
+    gap = np.abs((a[:, None] - sym[None, :] + 180.0) % 360.0 - 180.0)
+    near = (gap <= 1.5 * _SIL_STEP_DEG).any(axis=1) if len(sym) else np.zeros(len(a), bool)
+    out = [float(a[i]) for i in sil.minima(len(a)) if np.isfinite(sil.cost[i]) and not near[i]]
+    return out or [0.0]
+
+
+def _polish_turn(judge: _TurnJudge, around: float, half_deg: float) -> tuple[float, float]:
+    """The turn (degrees) within ``around +- half_deg`` whose silhouettes fit best at
+    ``_SIL_CUTOFF_MM``, and its loss: a bounded Brent search to ``_SIL_XATOL_DEG``."""
+    from scipy.optimize import minimize_scalar
+
+    best = minimize_scalar(judge.loss, bounds=(around - half_deg, around + half_deg), method="bounded",
+                           options={"xatol": _SIL_XATOL_DEG})
+    return float(best.x), float(best.fun)
+
+
+def _search_turn(judge: _TurnJudge, start: float, half_deg: float, radius_mm: float) -> tuple[float, float]:
+    """The best turn (degrees) within ``half_deg`` of ``start``, and its loss at
+    ``_SIL_CUTOFF_MM``: every ``_SIL_LOCAL_DEG`` there (at the cutoff of that step at the
+    outermost radius), then a Brent search about the best of those."""
+    cutoff = max(_SIL_CUTOFF_MM, radius_mm * np.radians(_SIL_LOCAL_DEG))
+    grid = start + np.arange(-half_deg, half_deg + 1e-9, _SIL_LOCAL_DEG)
+    b = float(grid[int(np.argmin([judge.loss(float(a), cutoff) for a in grid]))])
+    return _polish_turn(judge, b, _SIL_LOCAL_DEG)
+
+
+def _judge_turns(judge: _TurnJudge, scan) -> tuple[float, PoseConfidence]:
+    """The turn (degrees) the silhouettes choose about the judged pose, and how firmly.
+
+    The scan (:func:`_silhouette_scan`) names the basins; each of the ``_SIL_BASINS`` lowest
+    is searched to its best turn (:func:`_search_turn`), and the lowest wins. The confidence
+    (:func:`~inspector.kernels.registration.pose_confidence` of the scan for the axis, the
+    symmetries and the hull range) takes its runner-up and margin from the other searched
+    basins, each at its own best turn: a basin narrower than the scan's step is not judged
+    by a turn beside it.
+    """
+    from inspector.kernels.registration import AMBIGUOUS_POINTS, pose_confidence
+
+    sil = _silhouette_scan(judge, scan)
+    found = [_search_turn(judge, b, _SIL_STEP_DEG, scan.radius_mm) for b in _basins(sil)[:_SIL_BASINS]]
+    order = sorted(range(len(found)), key=lambda i: found[i][1])
+    angle, loss = found[order[0]]
+    conf = pose_confidence(sil)
+    width = np.degrees(2.0 * _SIL_CUTOFF_MM / scan.radius_mm) + _SIL_LOCAL_DEG
+    others = [found[i] for i in order[1:] if abs((found[i][0] - angle + 180.0) % 360.0 - 180.0) > width]
+    if others:
+        runner, rloss = others[0]
+        margin = rloss - loss
+        points = int(round(margin * judge.n * _SIL_STRIDE))
+        conf = dataclasses.replace(conf, runner_up_deg=float((runner - angle + 180.0) % 360.0 - 180.0), margin=margin,
+                                   margin_points=points, cutoff_mm=_SIL_CUTOFF_MM,
+                                   ambiguous=points < AMBIGUOUS_POINTS)
+    else:
+        # One basin (the others are symmetries or leave the hull): no other turn competes.
+        conf = dataclasses.replace(conf, runner_up_deg=None, margin=None, margin_points=None, ambiguous=False)
+    return angle, conf
+
+
+def _turned(pose: np.ndarray, prior: SizePrior, axis: np.ndarray, centre: np.ndarray, angle_deg: float) -> np.ndarray:
+    """The rigid pose (4, 4) that places the reference as ``pose`` does, turned by
+    ``angle_deg`` about its own axis *before* the size model: ``placement(result) =
+    placement(pose) @ turn``. (Turning after it would also turn the model's shift and tilt,
+    fitted at ``pose``: 0.03-0.05 mm at the ends of a 40 mm shaft after a half turn.)"""
+    S = np.linalg.inv(pose) @ prior.placement(pose)
+    return pose @ S @ _turn(axis, centre, angle_deg) @ np.linalg.inv(S)
+
+
+def _axis_turn_deg(a: np.ndarray, b: np.ndarray, axis: np.ndarray) -> float:
+    """The turn (degrees) about ``axis`` (reference frame) of placement ``b`` (4, 4, maybe
+    scaled) relative to placement ``a``."""
+    from scipy.spatial.transform import Rotation
+
+    M = np.linalg.inv(a)[:3, :3] @ b[:3, :3]
+    M = M / np.cbrt(np.linalg.det(M))
+    return float(np.degrees(Rotation.from_matrix(M).as_rotvec() @ np.asarray(axis, float)))
 
 
 def _turn(axis: np.ndarray, centre: np.ndarray, angle_deg: float) -> np.ndarray:
@@ -330,26 +502,61 @@ def _run(select):
             return refined, sel
 
         refined, sel = settle(alignment.pose, sel, True)
-        # Where the hull leaves the turn open (a keyway, a flat: features a fraction of a
-        # millimetre deep), the points selected against a pose agree with it; the turns
-        # the hull allows are each judged by a selection of their own.
+
         def scan_at(pose: np.ndarray, sel: BcpsPoints):
             return scan_about_axis(sel.points, ref.vertices, ref.faces, pose, cutoff_mm=p.refine_start_mm,
                                    index=ref.distance, hull_points=hull.points, hull_mm=hull_mm)
 
         scan = scan_at(refined.pose, sel)
-        turned = _turn_search(ctx, refined.pose, scan, p, cache)
-        if turned is not None:
-            refined, sel = settle(turned, sparse(turned), False)
-            scan = scan_at(refined.pose, sel)
-        # How firmly the points fix the turn about the axis of near-symmetry (the scan of the
-        # settled pose: the size fit below corrects it by hundredths of a degree).
-        confidence = pose_confidence(scan)
+        sized = getattr(p, "prior", "nominal") == "size"
+        judged = None
+        # The axis whose turn the silhouettes judge (None: no axis, or one every turn about
+        # which is a symmetry).
+        axis = scan.axis if scan is not None and scan.distinct().any() else None
+        if scan is not None and axis is not None:
+            # The turn about an axis of near-symmetry is fixed by features a fraction of a
+            # millimetre deep in the silhouettes (a keyway: 0.1-0.5 mm in one or two views),
+            # which the points selected against a pose cannot judge (they follow it). So the
+            # turns are judged on the contour rays themselves, against the reference under
+            # the part's size (a 2 % small shaft is 0.2 mm in everywhere, which would drown
+            # the keyway): every 6 degrees the hull allows, then the two lowest basins each
+            # to its best turn (:func:`_judge_turns`). Keyed shaft, 16 cameras, 0.98: the
+            # points alone left it 120 degrees off; now 0.01.
+            prior0 = _size_prior(ctx, sel, refined.pose, p, axis=axis) if sized else SizePrior()
+            judge = _TurnJudge(ctx, cache, refined.pose, prior0, axis, scan.centre, _SIL_STRIDE, False)
+            angle, confidence = _judge_turns(judge, scan)
+            if abs(angle) > _SIL_RESETTLE_DEG:
+                # Another turn: the points settle the other five degrees of freedom there
+                # (and move the turn again: a keyed shaft on 8 cameras, up to 6.5 degrees),
+                # and the silhouettes judge again about it, under a size model fitted there.
+                turned = judge.turned(angle)
+                refined, sel = settle(turned, sparse(turned), False)
+                prior0 = _size_prior(ctx, sel, refined.pose, p, axis=axis) if sized else SizePrior()
+                scan = scan_at(refined.pose, sel)
+                judge = _TurnJudge(ctx, cache, refined.pose, prior0, axis, scan.centre, _SIL_STRIDE, False)
+                angle, confidence = _judge_turns(judge, scan)
+            refined = dataclasses.replace(refined, pose=judge.turned(angle))
+            judged = prior0.placement(refined.pose)
+        else:
+            # No turn to judge (a torus: every turn is a symmetry): its axis and symmetries.
+            confidence = pose_confidence(scan)
+
+        def polish(pose: np.ndarray, prior: SizePrior) -> np.ndarray:
+            # The size fit below keeps the turn (its rotation loses its component about the
+            # axis), but its shift and tilt and the selections it stands on change the
+            # silhouettes' best turn by tenths of a degree: the final turn is theirs, on the
+            # fine loss of every third ray, about the turn judged above, when they decide it.
+            if judged is None or axis is None or confidence.ambiguous:
+                return pose
+            since = _axis_turn_deg(judged, prior.placement(pose), axis)
+            fine = _TurnJudge(ctx, cache, pose, prior, axis, scan.centre, _SIL_FINE_STRIDE, True)
+            return fine.turned(_polish_turn(fine, -since, _SIL_POLISH_DEG)[0])
+
         alignment = Alignment(refined.pose, refined.fitness, refined.rmse_mm, f"{alignment.method}+bcps-refine")
-        if getattr(p, "prior", "nominal") != "size":
-            return ctx.evolve(bcps=select(ctx, alignment.pose, p, cache),
-                              alignment=dataclasses.replace(alignment, confidence=confidence))
-        prior = _size_prior(ctx, sel, alignment.pose, p)
+        if not sized:
+            alignment = dataclasses.replace(alignment, pose=polish(alignment.pose, SizePrior()), confidence=confidence)
+            return ctx.evolve(bcps=select(ctx, alignment.pose, p, cache), alignment=alignment)
+        prior = _size_prior(ctx, sel, alignment.pose, p, axis=axis)
         if not prior.is_identity:
             # The first selection was made against the nominal reference, whose deepest
             # points over the faces that moved more bias the scale towards 1 (hex nut at
@@ -360,13 +567,14 @@ def _run(select):
             # degree off (flange at 0.98: 1.09 degrees; 0.25 after one re-fit against the
             # prior).
             for _ in range(_ATTEMPTS - 1):
-                refit = _size_prior(ctx, sparse(alignment.pose, prior=prior), alignment.pose, p, prior.rigid())
+                refit = _size_prior(ctx, sparse(alignment.pose, prior=prior), alignment.pose, p, prior.rigid(), axis=axis)
                 if refit.is_identity:
                     break
-                turned = _turn_deg(prior.rigid(alignment.pose), refit.rigid(alignment.pose))
+                step = _turn_deg(prior.rigid(alignment.pose), refit.rigid(alignment.pose))
                 prior = refit
-                if turned < _RESELECT_DEG:
+                if step < _RESELECT_DEG:
                     break
+        alignment = dataclasses.replace(alignment, pose=polish(alignment.pose, prior))
         sel = dataclasses.replace(select(ctx, alignment.pose, p, cache, prior=prior), size=prior)
         if not prior.is_identity:
             alignment = dataclasses.replace(alignment, pose=prior.rigid(alignment.pose), method=f"{alignment.method}+size")

@@ -157,7 +157,7 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
 
 def _unconfirmed(ctx: InspectionContext, defects: list[Defect]) -> str | None:
     """Why ``defects`` cannot be trusted, or None: the pose's turn about the part's axis of
-    near-symmetry is ambiguous (another turn fits the points about as well), so the defects
+    near-symmetry is ambiguous (another turn fits the silhouettes about as well), so the defects
     could be the part turned, not damaged. A size error is still stated: it does not depend
     on the turn."""
     conf = ctx.alignment.confidence if ctx.alignment is not None else None
@@ -165,8 +165,8 @@ def _unconfirmed(ctx: InspectionContext, defects: list[Defect]) -> str | None:
         return None
     size = ctx.bcps.size if ctx.bcps is not None else None
     sized = "" if size is None or size.is_identity else f"; the part measures {100 * (size.scale - 1):+.1f} % in size"
-    return (f"pose uncertain: a turn of {conf.runner_up_deg:+.0f} deg about the part's axis fits the points about as "
-            f"well (pinned by {conf.margin_points} points), so {len(defects)} defect(s) could be the part turned"
+    return (f"pose uncertain: a turn of {conf.runner_up_deg:+.0f} deg about the part's axis fits the silhouettes about "
+            f"as well (pinned by {conf.margin_points} contour points), so {len(defects)} defect(s) could be the part turned"
             f"{sized}; check the part's keying features are visible to the cameras")
 
 

@@ -400,6 +400,15 @@ class MeshDistance:
                 out[miss] = self.fallback(P[miss])
         return out
 
+    def near(self, points: np.ndarray) -> np.ndarray:
+        """Signed distances (N,) mm of points (N, 3) mm, NaN beyond the band (no fallback):
+        for callers that only care about points close to the surface."""
+        P = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        out = np.empty(len(P))
+        if len(P):
+            query(P, *self.args(), out)  # type: ignore[call-arg]  # a Numba dispatcher
+        return out
+
     def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Closest surface points (N, 3) and their triangles (N,) of points (N, 3), mesh frame."""
         P = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))

@@ -57,7 +57,8 @@ import open3d as o3d
 from inspector.kernels.robust import tukey, tukey_loss
 from inspector.model import Alignment, PoseConfidence
 
-__all__ = ["AxisScan", "align_reference", "pose_confidence", "refine_on_points", "scan_about_axis", "turns_about_axis"]
+__all__ = ["AxisScan", "TurnZone", "align_reference", "pose_confidence", "refine_on_points", "scan_about_axis", "turn_zone",
+           "turns_about_axis"]
 
 _REG = o3d.pipelines.registration
 
@@ -615,6 +616,99 @@ class AxisScan:
 _SELF_CACHE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
+@dataclass(frozen=True, eq=False)
+class TurnZone:
+    """Where a turn of the reference about its axis can change the distance to it.
+
+    Turning about the axis keeps a point's distance ``rho`` from the axis and its height
+    ``z`` along it; a point whose signed distance to the reference is the same at every turn
+    of the reference (a surface of revolution nearby, or far from any surface) is
+    *invariant*. A ray all of whose points are invariant has the same silhouette residual at
+    every turn, so a search over turns need not look at it (a keyed shaft: 60 % of the
+    contour rays; the others carry all the evidence).
+
+    Attributes
+    ----------
+    axis, centre : (3,) float
+        The axis (unit) and a point on it, reference frame.
+    z0 : float
+        Height of the grid's first row, mm.
+    cell_mm : float
+    variable : (R, Z) bool
+        Cells (``rho`` from 0, ``z`` from ``z0``) where the signed distance varies with the
+        turn and comes within the band of the surface, dilated by one cell.
+    """
+
+    axis: np.ndarray
+    centre: np.ndarray
+    z0: float
+    cell_mm: float
+    variable: np.ndarray
+
+    def hits(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: which reference-frame points (N, 3), mm, lie in a variable cell."""
+        rel = np.asarray(points, float).reshape(-1, 3) - self.centre
+        z = rel @ self.axis
+        rho = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - z * z, 0.0))
+        i = np.floor(rho / self.cell_mm).astype(np.int64)
+        j = np.floor((z - self.z0) / self.cell_mm).astype(np.int64)
+        R, Z = self.variable.shape
+        ok = (i < R) & (j >= 0) & (j < Z)
+        out = np.zeros(len(rel), bool)
+        out[ok] = self.variable[i[ok], j[ok]]
+        return out
+
+
+def turn_zone(index: Any, vertices: np.ndarray, axis: np.ndarray, centre: np.ndarray, *, cell_mm: float = 0.5,
+              band_mm: float = 1.0, tol_mm: float = 0.005, turns: int = 120) -> TurnZone:
+    """The :class:`TurnZone` of a reference about (``axis``, ``centre``).
+
+    Parameters
+    ----------
+    index : callable
+        ``(N, 3) -> (N,)`` signed distance to the reference, reference frame, mm (NaN far
+        from it is fine: e.g. ``MeshDistance.near``).
+    vertices : (V, 3) float
+        The reference's vertices (its extent), mm.
+    axis, centre : (3,) float
+        Unit axis and a point on it, reference frame.
+    cell_mm : float
+        Grid cell in ``rho`` and ``z``, mm.
+    band_mm : float
+        Only distances within this of the surface count, mm.
+    tol_mm : float
+        A cell varies when its distance ranges over more than this, mm.
+    turns : int
+        Turns sampled at each cell centre (every 3 degrees: a Ø5 bolt hole on a Ø38 circle
+        spans 15).
+    """
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    c = np.asarray(centre, float)
+    rel = np.asarray(vertices, float) - c
+    z = rel @ a
+    rho = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - z * z, 0.0))
+    e1 = np.cross(a, (1.0, 0.0, 0.0) if abs(a[0]) < 0.9 else (0.0, 1.0, 0.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    z0 = float(z.min()) - band_mm - cell_mm
+    nr = int(np.ceil((float(rho.max()) + band_mm) / cell_mm)) + 1
+    nz = int(np.ceil((float(z.max()) + band_mm + cell_mm - z0) / cell_mm)) + 1
+    r_c = (np.arange(nr) + 0.5) * cell_mm
+    z_c = z0 + (np.arange(nz) + 0.5) * cell_mm
+    phi = np.linspace(0.0, 2.0 * np.pi, int(turns), endpoint=False)
+    R, Z, F = np.meshgrid(r_c, z_c, phi, indexing="ij")
+    X = c + Z.reshape(-1, 1) * a + (R * np.cos(F)).reshape(-1, 1) * e1 + (R * np.sin(F)).reshape(-1, 1) * e2
+    sd = np.asarray(index(X), float).reshape(R.shape)
+    sd = np.where(np.isnan(sd), np.inf, sd)
+    near = np.abs(sd).min(axis=2) < band_mm
+    spread = np.where(np.isfinite(sd), sd, 1e9).max(axis=2) - sd.min(axis=2)
+    variable = near & (spread > tol_mm)
+    from scipy.ndimage import binary_dilation
+
+    variable = binary_dilation(variable, np.ones((3, 3), bool))
+    return TurnZone(axis=a, centre=c, z0=z0, cell_mm=float(cell_mm), variable=variable)
+
+
 def _self_moved(ref: _Reference, axis: np.ndarray, centre: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Fraction (K,) of the reference's surface samples that the turns ``T`` (K, 4, 4)
     move farther than ``_SELF_TOL_MM`` off the reference."""
@@ -1074,7 +1168,7 @@ def scan_about_axis(
 
 
 #: A runner-up turn pinned by fewer points than this (margin x points) is ambiguous.
-_AMBIGUOUS_POINTS = 30
+AMBIGUOUS_POINTS = 30
 
 
 def pose_confidence(scan: AxisScan | None) -> PoseConfidence:
@@ -1111,4 +1205,4 @@ def pose_confidence(scan: AxisScan | None) -> PoseConfidence:
     margin = float(c[best] - c[0])
     points = int(round(margin * scan.n_points))
     return replace(base, runner_up_deg=float(a[best]), margin=margin, margin_points=points,
-                   ambiguous=points < _AMBIGUOUS_POINTS)
+                   ambiguous=points < AMBIGUOUS_POINTS)

@@ -609,6 +609,41 @@ def write_section(path: Path, block: str) -> None:
 # --------------------------------------------------------------------------- main
 
 
+def keyway_visibility(cameras: int, poses: int, *, radius_mm: float = 10.0, half_width_mm: float = 3.0,
+                      footprint_mm: float = 0.1, seed: int = 0) -> np.ndarray:
+    """How deep the keyed shaft's keyway shows in the deepest of a rig's silhouettes, over
+    random poses (px, shape (poses,)).
+
+    A camera sees a shaft of radius ``r`` with two contour generators at azimuths
+    ``alpha +- acos(r / rho)`` about its axis (``alpha``, ``rho``: the camera centre's azimuth
+    and distance from the axis); a generator ``g`` degrees from the keyway's centre line, the
+    keyway ``2 beta`` wide (``beta = asin(half_width / r)``), shows a notch
+    ``r (1 - cos(max(0, beta - |g|)))`` deep (the keyway's edges, not its floor, make the
+    contour). Analytic, on the sweep's golden-spiral rigs and ``foreign_capture.random_pose``.
+    """
+    cams = fc.fibonacci_rig(cameras)
+    rng = np.random.default_rng(seed)
+    return np.array([keyway_depth_px(fc.random_pose(rng), cams, radius_mm=radius_mm, half_width_mm=half_width_mm,
+                                     footprint_mm=footprint_mm) for _ in range(poses)])
+
+
+def keyway_depth_px(T: np.ndarray, cams: list[Any], *, radius_mm: float = 10.0, half_width_mm: float = 3.0,
+                    footprint_mm: float = 0.1) -> float:
+    """The deepest the keyway (on the part's +x, axis z) shows in the silhouettes of ``cams``
+    with the part at pose ``T`` (4, 4), px (see :func:`keyway_visibility`)."""
+    beta = math.asin(half_width_mm / radius_mm)
+    depth = 0.0
+    for c in cams:
+        p = T[:3, :3].T @ (np.asarray(c.centre, float) - T[:3, 3])
+        alpha, rho = math.atan2(p[1], p[0]), math.hypot(p[0], p[1])
+        if rho <= radius_mm:  # looking along the axis: no contour on the shaft's side
+            continue
+        for g in (alpha + math.acos(radius_mm / rho), alpha - math.acos(radius_mm / rho)):
+            off = abs((g + math.pi) % (2.0 * math.pi) - math.pi)
+            depth = max(depth, radius_mm * (1.0 - math.cos(max(0.0, beta - off))))
+    return depth / footprint_mm
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -632,6 +667,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--capture-only", action="store_true", help="write (or find cached) captures, then stop")
     ap.add_argument("--measure-only", action="store_true", help="measure the existing results, run nothing")
     ap.add_argument("--selftest", action="store_true", help="check the pose-error composition, then stop")
+    ap.add_argument("--keyway-visibility", type=int, default=0, metavar="N",
+                    help="print how deep the keyed shaft's keyway shows on each --cameras rig over N random poses, then stop")
     ap.add_argument("--json", type=Path, default=None, help="metrics JSON (None: WORK/pose_sweep.json)")
     ap.add_argument("--md", type=Path, default=None, help="also write the markdown table here")
     ap.add_argument("--md-section", type=Path, default=None,
@@ -646,6 +683,14 @@ def main(argv: list[str] | None = None) -> int:
         except AssertionError as e:
             print(f"selftest FAILED: {e}", file=sys.stderr)
             return 3
+        return 0
+    if args.keyway_visibility:
+        print("| cameras | poses | deepest notch: median px | share >= 0.25 px | >= 0.5 px | >= 1 px |")
+        print("|---:|---:|---:|---:|---:|---:|")
+        for n in args.cameras:
+            d = keyway_visibility(n, args.keyway_visibility, seed=args.seed)
+            print(f"| {n} | {len(d)} | {np.median(d):.2f} | " + " | ".join(f"{np.mean(d >= x):.0%}" for x in (0.25, 0.5, 1.0))
+                  + " |")
         return 0
     t0 = time.perf_counter()
     args.work = args.work.resolve()

@@ -228,3 +228,31 @@ def test_a_true_point_in_a_hull_sliver_thinner_than_the_coarse_step_is_found(vie
                                           step_mm=0.25, refine_levels=3)
     assert ok[0]
     assert abs(pts[0, 2] - centre) < 0.01 and dev[0] < 0.005, (pts[0], dev[0])
+
+
+def test_ray_min_distance_is_the_silhouette_residual_of_a_sphere():
+    """Rays passing a sphere of radius 10 at known distances from its centre: the smallest
+    signed distance along each is that distance minus the radius (a ray through the sphere
+    goes as deep as its closest approach)."""
+    origin = np.array([0.0, 0.0, -100.0])
+    offsets = np.array([7.0, 9.5, 9.99, 10.0, 10.03, 10.4, 12.0])
+    targets = np.stack([offsets, np.zeros_like(offsets), np.zeros_like(offsets)], axis=1)
+    dirs = targets - origin
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    closest = np.linalg.norm(np.cross(dirs, -origin), axis=1)  # distance of the centre from each ray
+    sd = lambda X: np.linalg.norm(X, axis=1) - 10.0  # noqa: E731
+    t0, t1 = np.full(len(dirs), 80.0), np.full(len(dirs), 120.0)
+    r = bk.ray_min_distance(origin, dirs, t0, t1, sd, step_mm=0.25, levels=3)
+    np.testing.assert_allclose(r, closest - 10.0, atol=2e-4)
+    # No range: NaN; a far range: the distance there, not the closest approach.
+    t0[0], t1[0] = 1.0, 0.0
+    t0[1], t1[1] = 20.0, 50.0
+    r = bk.ray_min_distance(origin, dirs, t0, t1, sd)
+    assert np.isnan(r[0]) and r[1] > 5.0
+    # NaN from the distance (beyond an index's band) counts as far, not as a minimum.
+    r = bk.ray_min_distance(origin, dirs[2:3], t0[2:3], t1[2:3], lambda X: np.where(sd(X) > 1.0, np.nan, sd(X)))
+    assert abs(r[0] - (closest[2] - 10.0)) < 1e-3
+    with pytest.raises(ValueError, match="one row per ray"):
+        bk.ray_min_distance(origin, dirs, t0[:2], t1, sd)
+    with pytest.raises(ValueError, match="step_mm"):
+        bk.ray_min_distance(origin, dirs, t0, t1, sd, step_mm=0.0)

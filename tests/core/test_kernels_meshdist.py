@@ -76,3 +76,13 @@ def test_rejects_bad_meshes():
         MeshDistance(np.zeros((3, 2)), np.array([[0, 1, 2]]))
     with pytest.raises(ValueError):
         MeshDistance(np.zeros((3, 3)), np.zeros((0, 3), int))
+
+
+def test_near_is_the_exact_distance_within_the_band_and_nan_beyond():
+    box = trimesh.creation.box((10.0, 10.0, 10.0))
+    md = MeshDistance(box.vertices, box.faces, fallback=lambda P: np.full(len(P), -7.0), band_mm=1.0)
+    P = np.array([[5.5, 0.0, 0.0], [0.0, 0.0, 4.2], [20.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    d = md.near(P)
+    np.testing.assert_allclose(d[:2], [0.5, -0.8], atol=1e-12)
+    assert np.isnan(d[2]) and np.isnan(d[3])  # beyond the band, with or without a fallback
+    assert md(P)[2] == -7.0

@@ -525,3 +525,26 @@ def test_pose_confidence_tells_a_keyed_part_from_an_unpinned_one():
     faces = (np.abs(np.abs(P[:, 2]) - 3.0) < 1e-6) & (r < 9.0)
     blind = pose_confidence(scan_about_axis(P[faces], keyed.vertices, keyed.faces, np.eye(4), cutoff_mm=1.0))
     assert blind.ambiguous
+
+
+def test_turn_zone_marks_only_where_a_turn_changes_the_distance():
+    """A Ø20 shaft with a notch on one side over z in [-5, 5]: a turn about its axis changes
+    the distance only near the notch's heights and radii; the plain shaft has no such zone."""
+    from inspector.kernels.meshdist import MeshDistance
+    from inspector.kernels.registration import turn_zone
+
+    shaft = trimesh.creation.cylinder(radius=10.0, height=40.0, sections=128)
+    notch = trimesh.creation.box((4.0, 6.0, 10.0))
+    notch.apply_translation((9.5, 0.0, 0.0))
+    keyed = trimesh.boolean.difference([shaft, notch], engine="manifold")
+    axis, centre = np.array([0.0, 0.0, 1.0]), np.zeros(3)
+    zone = turn_zone(MeshDistance(keyed.vertices, keyed.faces).near, keyed.vertices, axis, centre)
+    pts = np.array([[0.0, 10.0, 0.0],     # on the rim at the notch's height: a turn brings the notch here
+                    [-9.0, 0.0, 3.0],      # inside, within the band of the notch's floor
+                    [0.0, 10.0, 12.0],     # on the rim above the notch
+                    [0.0, 10.0, -15.0],    # below it
+                    [0.0, 0.0, 0.0],       # on the axis, far from any surface
+                    [0.0, 30.0, 0.0]])     # far outside
+    np.testing.assert_array_equal(zone.hits(pts), [True, True, False, False, False, False])
+    plain = turn_zone(MeshDistance(shaft.vertices, shaft.faces).near, shaft.vertices, axis, centre)
+    assert not plain.variable.any()

@@ -324,7 +324,7 @@ def test_evaluate_a_defect_seen_by_one_camera_only_does_not_reject():
 
 
 def test_defects_on_an_ambiguous_turn_are_unconfirmed_not_reported():
-    """When another turn about the part's axis fits the points about as well, the defects
+    """When another turn about the part's axis fits the silhouettes about as well, the defects
     could be the part turned: verdict error with the reason, the clusters kept aside."""
     import dataclasses
 
@@ -341,7 +341,7 @@ def test_defects_on_an_ambiguous_turn_are_unconfirmed_not_reported():
     unsure = evaluate(ctx.evolve(alignment=dataclasses.replace(ctx.alignment, confidence=loose)), EvaluateParams())
     ev = unsure.evaluation
     assert ev.verdict == "error" and ev.defects == ()
-    assert "pose uncertain" in ev.error and "+90 deg" in ev.error and "4 points" in ev.error
+    assert "pose uncertain" in ev.error and "+90 deg" in ev.error and "4 contour points" in ev.error
     assert ev.stats["unconfirmed_defects"][0]["n_points"] == 6
     # a part with no defect passes whatever the turn
     ok = evaluate(_eval_ctx(np.zeros(6), pts).evolve(alignment=Alignment(np.eye(4), 1.0, 0.0, confidence=loose)),
