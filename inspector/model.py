@@ -300,13 +300,16 @@ class PoseConfidence:
         allow the pose to turn.
     runner_up_deg : float or None
         The best other turn (neither near the pose nor near a symmetry, and inside the
-        hull), degrees; None when every other turn leaves the hull.
+        hull), degrees; None when no other turn competes (every other one leaves the hull
+        or is near a symmetry, or the silhouettes show a single basin).
     margin : float or None
-        How much worse the points fit at ``runner_up_deg`` than at the pose: the mean
-        Tukey loss at ``cutoff_mm`` (0: every point on the surface; 1: every point beyond
-        the cutoff) at the runner-up minus at the pose.
+        How much worse the data fit at ``runner_up_deg`` than at the pose: the mean Tukey
+        loss at ``cutoff_mm`` (0: every residual zero; 1: every one beyond the cutoff) at the
+        runner-up minus at the pose. The built-in ``bcps`` stages judge the silhouettes: the
+        residuals are the contour rays' smallest distances to the reference, each turn at
+        its own best (:func:`inspector.kernels.bcps.ray_min_distance`).
     margin_points : int or None
-        ``margin`` times the number of points: about how many points pin the turn.
+        ``margin`` times the number of contour points (or points): about how many pin the turn.
     cutoff_mm : float
         The loss's cutoff, mm.
     ambiguous : bool
