@@ -272,7 +272,7 @@ class _TurnJudge:
             rest.append((origin, d[ok & ~act], a[ok & ~act], b[ok & ~act]))
         self.n = n
         # The median and the turn-independent part, from the rays left out.
-        r_act = self._residuals(np.eye(4))
+        r_act = self._at_pose = self._residuals(np.eye(4))
         r_rest = np.concatenate([self._min_distance(inv, *ray) for ray in rest]) if rest else np.zeros(0)
         r_all = np.concatenate([r_act, r_rest])
         r_all = r_all[np.isfinite(r_all)]
@@ -310,7 +310,7 @@ class _TurnJudge:
     def loss(self, angle_deg: float, cutoff_mm: float = _SIL_CUTOFF_MM) -> float:
         """Mean loss (0..1) of the rays at the turn ``angle_deg`` about the axis, Tukey cutoff
         ``cutoff_mm``."""
-        r = self._residuals(_turn(self.axis, self.centre, angle_deg))
+        r = self._at_pose if angle_deg == 0.0 else self._residuals(_turn(self.axis, self.centre, angle_deg))
         r = r[np.isfinite(r)] - self.median
         return float(np.sum(tukey_loss(r, cutoff_mm)) + np.sum(tukey_loss(self._rest, cutoff_mm))) / max(self.n, 1)
 
@@ -320,8 +320,7 @@ class _TurnJudge:
 
 
 def _silhouette_scan(judge: _TurnJudge, scan):
-    """``scan``'s turns about the axis (as turns of the reference; the scan's angles turn the
-    points), about every ``_SIL_STEP_DEG``, judged on the
+    """``scan``'s turns about the axis, about every ``_SIL_STEP_DEG``, judged on the
     silhouettes at a cutoff as wide as the outermost point moves between two of them (at 0.1
     mm a flat's basin is +-0.6 degree wide on a Ø20 shaft, and a grid would step over it):
     an :class:`~inspector.kernels.registration.AxisScan` whose cost is :meth:`_TurnJudge.loss`
@@ -329,10 +328,7 @@ def _silhouette_scan(judge: _TurnJudge, scan):
     reference) and whose ``n_points`` are the contour points it stands for."""
     k = max(1, int(round(len(scan.angles_deg) * _SIL_STEP_DEG / 360.0)))
     idx = np.arange(0, len(scan.angles_deg), k)
-    # The scan turns the points; the reference turns the other way (0 stays first).
-    turns = (-scan.angles_deg[idx]) % 360.0
-    order = np.argsort(turns, kind="stable")
-    idx, turns = idx[order], turns[order]
+    turns = scan.angles_deg[idx]
     wide = max(_SIL_CUTOFF_MM, scan.radius_mm * np.radians(360.0 / len(scan.angles_deg) * k))
     cost = np.full(len(idx), np.inf)
     for j, i in enumerate(idx):

@@ -391,13 +391,10 @@ class MeshDistance:
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """Signed distances (N,) mm of points (N, 3) mm in the mesh's frame."""
-        P = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-        out = np.empty(len(P))
-        if len(P):
-            query(P, *self.args(), out)  # type: ignore[call-arg]  # a Numba dispatcher
-            miss = np.isnan(out)
-            if self.fallback is not None and miss.any():
-                out[miss] = self.fallback(P[miss])
+        out = self.near(points)
+        miss = np.isnan(out)
+        if self.fallback is not None and miss.any():
+            out[miss] = self.fallback(np.asarray(points, dtype=np.float64).reshape(-1, 3)[miss])
         return out
 
     def near(self, points: np.ndarray) -> np.ndarray:

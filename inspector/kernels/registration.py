@@ -739,8 +739,10 @@ def _scan(ref: _Reference, points: np.ndarray, W: np.ndarray, cutoff_mm: float,
     if k not in cache:
         cache[k] = _self_moved(ref, axis, centre, T)
     x = points[:: max(1, len(points) // _SCAN_POINTS)]
-    cost = np.mean(tukey_loss(ref.distance(_transform(T @ W, x)), cutoff_mm), axis=1)
-    poke = None if hull is None else _poking(ref, hull[0], T @ W, hull[1])
+    # The reference turned by an angle is the points turned back by it (in its frame).
+    back = turns_about_axis(axis, centre, -angles) @ W
+    cost = np.mean(tukey_loss(ref.distance(_transform(back, x)), cutoff_mm), axis=1)
+    poke = None if hull is None else _poking(ref, hull[0], back, hull[1])
     return AxisScan(axis=axis, centre=centre + ref.centre, angles_deg=angles, cost=cost, moved=cache[k],
                     cutoff_mm=float(cutoff_mm), radius_mm=radius, n_points=len(points), poke=poke)
 
@@ -1110,7 +1112,8 @@ def refine_on_points(
         scan = _scan(ref, pts, W0, wide)
         near = _near_axis(ref)
         if scan is not None and near is not None:
-            extra = turns_about_axis(near[0], near[1], scan.angles_deg[scan.minima(_SCAN_STARTS)])
+            # Starts act on the points: the reference's turn, backwards.
+            extra = turns_about_axis(near[0], near[1], -scan.angles_deg[scan.minima(_SCAN_STARTS)])
             turns, judge = np.concatenate([turns, extra]), wide
     if len(turns) > 1:
         hull = None if hull_points is None else (_as_points("hull_points", hull_points), _positive("hull_mm", hull_mm))
