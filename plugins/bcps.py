@@ -8,6 +8,7 @@ re-align the reference on the selected points, select again.
 from __future__ import annotations
 
 import dataclasses
+import weakref
 from dataclasses import dataclass
 from typing import Literal
 
@@ -228,6 +229,9 @@ def _turn_deg(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
+_ZONES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
 class _TurnJudge:
     """The silhouette loss of the reference turned about its axis, under one placement.
 
@@ -250,9 +254,10 @@ class _TurnJudge:
         from inspector.kernels.registration import turn_zone
 
         ref = ctx.need("reference", "bcps")
-        if "zone" not in cache:
-            cache["zone"] = turn_zone(ref.distance.near, ref.vertices, axis, centre)
-        zone = cache["zone"]
+        # The zone depends on the reference alone (40-85 ms): once per reference, not per part.
+        zone = _ZONES.get(ref)
+        if zone is None:
+            zone = _ZONES[ref] = turn_zone(ref.distance.near, ref.vertices, axis, centre)
         self.pose, self.prior, self.axis, self.centre = pose, prior, np.asarray(axis, float), np.asarray(centre, float)
         self._ref, self._fine = ref, fine
         self._place = prior.placement(pose)
