@@ -20,7 +20,7 @@ from pathlib import Path
 
 from inspector.errors import CaptureError
 
-__all__ = ["RESERVED", "name_problem", "check_name", "printable", "folder_name"]
+__all__ = ["RESERVED", "name_problem", "check_name", "printable", "folder_name", "text_problem"]
 
 #: Entries of OUTDIR that are not result folders: the history database and its SQLite
 #: journal files (a folder of that name disables the history), and the recipes the
@@ -30,6 +30,9 @@ RESERVED = frozenset({"history.sqlite", "history.sqlite-wal", "history.sqlite-sh
 # Characters that break a line (str.splitlines splits on some of these) or a terminal, and
 # lone surrogates (undecodable bytes of a file name: printing one raises UnicodeEncodeError).
 _UNPRINTABLE = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\ud800-\udfff]")
+# Bidirectional controls and invisible format characters: "part\u202egnp.exe" displays as
+# another name than it is (in a file manager, the GUI, a report).
+_DECEPTIVE = re.compile(r"[\u061c\u200b-\u200f\u202a-\u202e\u2060-\u2069\ufeff]")
 _MAX_BYTES = 255  # NAME_MAX of every file system the product runs on
 
 
@@ -43,6 +46,8 @@ def name_problem(name: object) -> str | None:
         return "contains a path separator"
     if _UNPRINTABLE.search(name):
         return "contains a control character or bytes that are not UTF-8"
+    if _DECEPTIVE.search(name):
+        return "contains a bidirectional or invisible formatting character (it would display as another name)"
     if len(name.encode("utf-8")) > _MAX_BYTES:
         return f"is longer than {_MAX_BYTES} bytes"
     if name in RESERVED:
@@ -50,11 +55,31 @@ def name_problem(name: object) -> str | None:
     return None
 
 
+def text_problem(value: object) -> str | None:
+    """Why a text read from a capture (``capture.json``'s ``part_id``, any string in it)
+    cannot be stored, or None: a lone surrogate (JSON's ``"\\ud800"``) is not Unicode text,
+    and SQLite, PostgreSQL and every UTF-8 file refuse it."""
+    if isinstance(value, str):
+        m = re.search(r"[\ud800-\udfff]", value)
+        return None if m is None else f"is not valid Unicode text (a lone surrogate at character {m.start()})"
+    if isinstance(value, dict):
+        for k, v in value.items():
+            why = text_problem(k) or text_problem(v)
+            if why is not None:
+                return why
+    if isinstance(value, list):
+        for v in value:
+            why = text_problem(v)
+            if why is not None:
+                return why
+    return None
+
+
 def printable(name: object) -> str:
     """``name`` safe for a one-line message: with a control character or an undecodable
     byte, written as Python escapes it (``a\\nb``); else unchanged."""
     text = str(name)
-    return ascii(text)[1:-1] if _UNPRINTABLE.search(text) else text
+    return ascii(text)[1:-1] if _UNPRINTABLE.search(text) or _DECEPTIVE.search(text) else text
 
 
 def check_name(name: object, what: str = "capture") -> str:

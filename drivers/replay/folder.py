@@ -70,6 +70,7 @@ from inspector.errors import CaptureError
 from inspector.kernels.camera import is_rotation
 from inspector.limits import image_file_bytes, limit, load_json, read_bounded
 from inspector.model import Camera, Capture, Rig, Truth
+from inspector.names import printable, text_problem
 
 if TYPE_CHECKING:  # pragma: no cover
     import trimesh
@@ -313,6 +314,10 @@ def _parse_capture_json(folder: Path) -> tuple[str, dict[str, Any]]:
     part_id = data.get("part_id")
     if part_id is not None and not isinstance(part_id, str):
         raise CaptureError(f"{CAPTURE_FILE}: part_id must be a string, got {json.dumps(part_id)}")
+    for key, value in data.items():
+        why = text_problem(key) or text_problem(value)
+        if why is not None:
+            raise CaptureError(f"{CAPTURE_FILE}: {printable(key)} {why}")
     ts = data.get("timestamp")
     if ts is not None:
         ok = isinstance(ts, str)

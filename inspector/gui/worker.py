@@ -91,18 +91,26 @@ class SessionWorker(QObject):
         #: drawn what needs the CPU most (the 3D view).
         self.drawing_gate: threading.Event | None = None
         self._thread: threading.Thread | None = None
+        # Set from start() until ``ended`` is emitted: the run as the GUI sees it. The thread
+        # itself lives a little longer (it returns from Session.run after RunEnded), so its
+        # liveness would make a handler of ``ended`` see a busy worker and leave INSPECT off.
+        self._running = threading.Event()
         self._progress = _Progress(self)
         session.pm.register(self._progress, name="inspector-gui-progress")
         self._unsubscribe = session.subscribe(self._on_event)
 
     @property
     def busy(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        """True from :meth:`start` until ``ended`` is emitted."""
+        return self._running.is_set()
 
     def start(self, source: Source | None = None) -> bool:
         """Start a run; False (nothing started) when one is in progress."""
         if self.busy:
             return False
+        if self._thread is not None:  # the last run's thread, returning after its ``ended``
+            self._thread.join(10.0)
+        self._running.set()
         self._thread = threading.Thread(target=self._run, args=(source,), name="inspector-session", daemon=True)
         self._thread.start()
         return True
@@ -133,10 +141,17 @@ class SessionWorker(QObject):
             self.session.run(source)
         except InspectorError as e:  # RecipeError too: one line, the GUI goes on
             self.failed.emit(str(e))
-            self.ended.emit(None)
+            self._end(None)
         except Exception as e:  # noqa: BLE001 - a bug: one line for the operator
             self.failed.emit(f"internal error {type(e).__name__}: {' '.join(str(e).split())}")
-            self.ended.emit(None)
+            self._end(None)
+        finally:
+            self._running.clear()
+
+    def _end(self, summary: Any) -> None:
+        """Not busy any more, then ``ended``: its handlers see an idle worker."""
+        self._running.clear()
+        self.ended.emit(summary)
 
     def _on_event(self, event: Any) -> None:
         if isinstance(event, RunStarted):
@@ -163,4 +178,4 @@ class SessionWorker(QObject):
         elif isinstance(event, Warned):
             self.warned.emit(f"{event.capture}: {event.text}")
         elif isinstance(event, RunEnded):
-            self.ended.emit(event.summary)
+            self._end(event.summary)

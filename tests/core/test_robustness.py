@@ -292,6 +292,7 @@ def test_a_deeply_nested_recipe_is_one_line(tmp_path, capsys):
 
 
 BAD_NAMES = ["", ".", "..", "a/b", "../x", "a\\b", "a\nb", "tab\there", "bell\x07", "x\u2028y", "bad\udcffbyte", "x" * 256,
+             "part\u202egnp.exe", "zero\u200bwidth", "bom\ufeff",
              *sorted(RESERVED)]
 
 
@@ -536,6 +537,26 @@ def test_run_refuses_a_reserved_capture_name_and_inspects_the_rest(tmp_path, cap
     assert err[2].startswith("inspector: error: recipes: capture name 'recipes' is reserved")
     rows = sqlite3.connect(out / "history.sqlite").execute("SELECT capture FROM inspections").fetchall()
     assert rows == [("p1",)]  # a refused capture has no result folder, so no history row
+
+
+def test_a_lone_surrogate_part_id_is_an_error_with_its_history_row(tmp_path, capsys):
+    """Issue 27 finding 8: ``"part_id": "\\ud800x"`` lost the history row and exited 0."""
+    from inspector.cli import main
+
+    batch = tmp_path / "batch"
+    bad = _fake_capture(batch / "p1")
+    (bad / "capture.json").write_text('{"part_id": "\\ud800x"}')
+    (_fake_capture(batch / "p2") / "capture.json").write_text('{"part_id": "ok", "note": {"k": ["\\udfff"]}}')
+    recipe = tmp_path / "r.toml"
+    recipe.write_text(RUN_RECIPE)
+    out = tmp_path / "out"
+    assert main(["run", str(recipe), "--capture", str(batch), "--out", str(out), "-q"]) == 3
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == ("inspector: error: p1: capture.json: part_id is not valid Unicode text (a lone surrogate at "
+                      "character 0)")
+    assert err[1].startswith("inspector: error: p2: capture.json: note is not valid Unicode text")
+    rows = sqlite3.connect(out / "history.sqlite").execute("SELECT capture, verdict FROM inspections ORDER BY capture")
+    assert rows.fetchall() == [("p1", "error"), ("p2", "error")]
 
 
 # --------------------------------------------------------------------------- history metadata
