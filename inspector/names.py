@@ -9,7 +9,8 @@ writes anything, so no driver (a third party's included) can write outside ``--o
 
 Refused: the empty name, ``.`` and ``..``, a path separator (``/``, and ``\\`` which is one
 on Windows shares), control characters (a newline would split the one-line reports), names
-longer than 255 bytes, and the names of what ``OUTDIR`` itself holds (:data:`RESERVED`).
+longer than 255 bytes, the names of what ``OUTDIR`` itself holds (:data:`RESERVED`), and
+``.NAME.partial`` / ``.NAME.old``, the result writer's own temporary folders.
 """
 
 from __future__ import annotations
@@ -52,6 +53,9 @@ def name_problem(name: object) -> str | None:
         return f"is longer than {_MAX_BYTES} bytes"
     if name in RESERVED:
         return f"is reserved in the result folder (OUTDIR/{name} is not a result)"
+    if name.startswith(".") and name.endswith((".partial", ".old")):
+        # OUTDIR/.<name>.partial and .old are where write_result builds and swaps a result.
+        return "is reserved for the result writer's temporary folders (.NAME.partial, .NAME.old)"
     return None
 
 

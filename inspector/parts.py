@@ -453,7 +453,8 @@ def load_reference(spec: str | os.PathLike, *, recentre: bool = True) -> trimesh
         With a one-line message naming the file: the file is missing, unreadable or
         of an unsupported format, larger than the input bounds (:mod:`inspector.limits`:
         ``INSPECTOR_MAX_REFERENCE_BYTES``, ``INSPECTOR_MAX_REFERENCE_TRIANGLES``, checked
-        from a binary STL's or a PLY's header before it is parsed), holds no triangles, is
+        before any file is parsed: a binary STL's or a PLY's header, an ASCII STL's or an
+        OBJ's lines counted in bounded memory), holds no triangles, is
         not watertight or not consistently wound; or the built-in name is unknown.
     """
     if isinstance(spec, str) and spec.startswith(BUILTIN_PREFIX):
@@ -500,29 +501,68 @@ def _check_triangles(n: int, where: str) -> None:
         )
 
 
-def _declared_triangles(path: Path, size: int) -> int | None:
-    """The triangle count a file declares before its data, or None: a binary STL's count
-    (when the file's size matches it), a PLY header's ``element face`` (polygons count once)."""
+def _count_lines(path: Path, starts: tuple[bytes, ...], most: int) -> int:
+    """Lines of ``path`` that begin (after blanks) with one of ``starts``, read in 16 MiB
+    chunks (bounded memory), stopping once more than ``most`` are counted."""
+    import re
+
+    pattern = re.compile(rb"^[ \t]*(?:" + b"|".join(re.escape(s) for s in starts) + rb")", re.M)
+    n = 0
+    tail = b""
+    with open(path, "rb") as f:
+        while n <= most:
+            chunk = f.read(16 * 2**20)
+            if not chunk:
+                break
+            cut = chunk.rfind(b"\n") + 1  # whole lines only; the rest goes with the next chunk
+            if cut == 0:
+                tail += chunk
+                continue
+            n += len(pattern.findall(tail + chunk[:cut]))
+            tail = chunk[cut:]
+    if tail and n <= most:
+        n += len(pattern.findall(tail))
+    return n
+
+
+def _declared_triangles(path: Path, size: int, where: str, most: int) -> int | None:
+    """The triangles a file holds, counted before it is parsed, or None when unknown: a
+    binary STL's count (its size must match it), a PLY header's ``element face`` (polygons
+    count once), an ASCII STL's ``facet`` lines and an OBJ's ``f`` lines (polygons count
+    once; streamed, stopping past ``most``). A binary STL whose size does not match its
+    count is refused: parsed as ASCII it took 1.8 GB to say "no triangles"."""
     import re
     import struct
 
     with open(path, "rb") as f:
         head = f.read(65536)
+    suffix = path.suffix.lower()
     if head[:3] == b"ply":
         end = head.find(b"end_header")
         m = re.search(rb"^element\s+face\s+(\d+)\s*$", head[: end if end >= 0 else None], re.M)
         return int(m.group(1)) if m else None
-    if len(head) >= 84:
+    if suffix == ".stl":
+        ascii_stl = head.lstrip()[:5].lower() == b"solid" and b"\0" not in head[:1024] and (
+            b"facet" in head or len(head) < 84)
+        if ascii_stl:
+            return _count_lines(path, (b"facet",), most)
+        if len(head) < 84:
+            raise ReferenceMeshError(f"{where}: {size} bytes, too short for a binary STL (84-byte header)")
         n = struct.unpack("<I", head[80:84])[0]
-        if 84 + 50 * n == size:  # binary STL
-            return n
+        if 84 + 50 * n != size:
+            raise ReferenceMeshError(
+                f"{where}: a binary STL declaring {n} triangles ({84 + 50 * n} bytes) but the file has {size} bytes "
+                "(truncated or padded: export it again)")
+        return n
+    if suffix == ".obj":
+        return _count_lines(path, (b"f ", b"f\t"), most)
     return None
 
 
 def _check_mesh_size(path: Path, where: str) -> None:
     """The input bounds of a reference mesh (:mod:`inspector.limits`), before it is parsed:
-    the file's size, and the triangles a binary STL or a PLY header declares (other files are
-    counted once parsed, within the size bound). ReferenceMeshError in one line."""
+    the file's size, and the triangles a binary STL or a PLY header declares or an ASCII STL
+    or OBJ holds (counted by streaming the file). ReferenceMeshError in one line."""
     from inspector.limits import limit
 
     try:
@@ -533,7 +573,7 @@ def _check_mesh_size(path: Path, where: str) -> None:
                 f"{where}: {size} bytes, more than the {most} a reference mesh may have "
                 "(INSPECTOR_MAX_REFERENCE_BYTES; decimate the mesh, or raise the bound)"
             )
-        n = _declared_triangles(path, size)
+        n = _declared_triangles(path, size, where, limit("MAX_REFERENCE_TRIANGLES"))
     except OSError as exc:
         raise ReferenceMeshError(f"{where}: cannot be read ({exc.strerror or exc})") from None
     if n is not None:

@@ -1067,7 +1067,7 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``inspector import``; 0 on success, 3 (one line on stderr) when an input is invalid."""
+    """Run ``inspector import``; 0 on success, 2 (one line on stderr) when an input is invalid, like every command."""
     try:
         fn = IMPORTERS[args.format]
         kw: dict[str, Any] = {"scale": args.scale, "overwrite": bool(args.force)}
@@ -1090,5 +1090,5 @@ def run(args: argparse.Namespace) -> int:
                 print(f"{f}: median {res['median']:.4f}, mean {res['mean']:.4f}, min {res['min']:.4f} ({len(det['clipped'])} clipped views left out)")
     except InputError as exc:
         print(f"inspector: error: {exc}", file=sys.stderr)
-        return 3
+        return 2
     return 0

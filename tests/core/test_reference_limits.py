@@ -78,3 +78,36 @@ def test_run_with_a_huge_reference_is_a_command_error_in_one_line(tmp_path, caps
     assert err == [f"inspector: error: reference mesh {stl}: {n} triangles, more than the {MAX_REFERENCE_TRIANGLES} a "
                    "reference mesh may have (INSPECTOR_MAX_REFERENCE_TRIANGLES; decimate the mesh, or raise the bound)"]
     assert not (tmp_path / "out").exists()
+
+
+def test_an_obj_with_millions_of_faces_is_counted_before_it_is_parsed(tmp_path):
+    """Issue 27 finding 5: a 60 M-face OBJ was parsed (9.3 GB, 128 s) before it was counted."""
+    n = MAX_REFERENCE_TRIANGLES + 5
+    obj = tmp_path / "many.obj"
+    obj.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\n" + b"f 1 2 3\n" * n)
+    assert _refusal(obj).startswith(f"reference mesh {obj}: {n} triangles, more than the {MAX_REFERENCE_TRIANGLES}")
+
+
+def test_an_ascii_stl_with_millions_of_facets_is_counted_before_it_is_parsed(tmp_path):
+    facet = b"facet normal 0 0 1\n outer loop\n  vertex 0 0 0\n  vertex 1 0 0\n  vertex 0 1 0\n endloop\nendfacet\n"
+    stl = tmp_path / "many.stl"
+    with open(stl, "wb") as f:
+        f.write(b"solid many\n")
+        for _ in range((MAX_REFERENCE_TRIANGLES + 5) // 10000 + 1):
+            f.write(facet * 10000)
+        f.write(b"endsolid many\n")
+    assert "triangles, more than the" in _refusal(stl)
+
+
+def test_a_binary_stl_with_one_byte_too_many_is_refused_not_parsed_as_ascii(tmp_path):
+    """Issue 27 finding 5: parsed as ASCII it took 1.8 GB to say "no triangles"."""
+    import trimesh
+
+    good = tmp_path / "sphere.stl"
+    trimesh.creation.icosphere(subdivisions=2, radius=10.0).export(str(good))
+    bad = tmp_path / "padded.stl"
+    bad.write_bytes(good.read_bytes() + b"\0")
+    size = bad.stat().st_size
+    assert _refusal(bad) == (f"reference mesh {bad}: a binary STL declaring 320 triangles ({size - 1} bytes) but the file "
+                             f"has {size} bytes (truncated or padded: export it again)")
+    assert len(load_reference(str(good)).faces) == 320

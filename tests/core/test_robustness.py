@@ -292,7 +292,7 @@ def test_a_deeply_nested_recipe_is_one_line(tmp_path, capsys):
 
 
 BAD_NAMES = ["", ".", "..", "a/b", "../x", "a\\b", "a\nb", "tab\there", "bell\x07", "x\u2028y", "bad\udcffbyte", "x" * 256,
-             "part\u202egnp.exe", "zero\u200bwidth", "bom\ufeff",
+             "part\u202egnp.exe", "zero\u200bwidth", "bom\ufeff", ".c0.partial", ".c0.old",
              *sorted(RESERVED)]
 
 

@@ -451,13 +451,13 @@ def test_cli_import(tmp_path, part, capsys):
     args = ap.parse_args(["import", "middlebury", str(par.parent), "--out", str(tmp_path / "cap")])
     assert run(args) == 0
     assert "wrote" in capsys.readouterr().out
-    assert run(args) == 3  # exists
+    assert run(args) == 2  # exists
     assert "not empty" in capsys.readouterr().err
     args = ap.parse_args(["import", "middlebury", str(par.parent), "--out", str(tmp_path / "cap"), "--force", "--scale", "1"])
     assert run(args) == 0
     assert read_capture(tmp_path / "cap").metadata["import"]["scale_to_mm"] == 1.0
     args = ap.parse_args(["import", "idr", str(tmp_path / "none"), "--out", str(tmp_path / "o")])
-    assert run(args) == 3
+    assert run(args) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "does not exist" in err
     assert sorted(IMPORTERS) == ["idr", "middlebury", "nerf", "opencv"]
