@@ -72,6 +72,7 @@ import json
 import math
 import re
 import sys
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -116,14 +117,16 @@ def _label(path: Path) -> str:
 
 
 def _read_text(path: Path) -> str:
+    """A dataset's text file (camera list, calibration), measured before it is read and
+    never read past ``INSPECTOR_MAX_JSON_BYTES`` (a 2 GiB file was an internal MemoryError)."""
+    from inspector.limits import limit, read_bounded
+
     if not path.exists():
         raise InputError(f"{_label(path)}: missing")
-    if not path.is_file():
-        raise InputError(f"{_label(path)}: not a file")
+    raw = read_bounded(path, _label(path), limit("MAX_JSON_BYTES"), InputError, what="a dataset text file",
+                       variable="INSPECTOR_MAX_JSON_BYTES")
     try:
-        return path.read_bytes().decode("utf-8-sig")
-    except OSError as exc:
-        raise InputError(f"{_label(path)}: cannot be read ({exc.strerror or exc})") from None
+        return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(f"{_label(path)}: not a text file (byte {exc.start})") from None
 
@@ -139,6 +142,71 @@ def _read_image(path: Path) -> np.ndarray:
         else:
             raise InputError(f"{_label(path)}: unsupported pixel type {img.dtype}")
     return to_rgb_order(img, _label(path), InputError)
+
+
+def _image_size(path: Path) -> tuple[int, int]:
+    """``(width, height)`` of an image from its header (Pillow reads no pixel), so a
+    photograph whose size is all an importer needs is never decoded (a 3 MB PNG bomb took
+    6.2 GB); more than ``INSPECTOR_MAX_IMAGE_PIXELS`` is refused in one line."""
+    from PIL import Image, UnidentifiedImageError
+
+    from inspector.limits import limit
+
+    most = limit("MAX_IMAGE_PIXELS")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                w, h = im.size
+    except Image.DecompressionBombError as exc:  # its own bound, far above ours: say ours
+        m = re.search(r"\((\d+) pixels\)", str(exc))
+        raise InputError(f"{_label(path)}: {m.group(1) if m else 'too many'} pixels, more than the {most} an image may "
+                         "have (INSPECTOR_MAX_IMAGE_PIXELS)") from None
+    except (OSError, UnidentifiedImageError, ValueError) as exc:
+        raise InputError(f"{_label(path)}: unreadable image ({type(exc).__name__})") from None
+    if w * h > most:
+        raise InputError(f"{_label(path)}: {w}x{h} is {w * h} pixels, more than the {most} an image may have "
+                         "(INSPECTOR_MAX_IMAGE_PIXELS)")
+    return int(w), int(h)
+
+
+def _load_npz(npz: Path, wanted: Callable[[str], bool]) -> dict[str, np.ndarray]:
+    """The arrays of ``npz`` whose names ``wanted`` accepts, each sized from its ``.npy``
+    header before it is decompressed (a 4 MB npz inflating to 4 GB is refused in one line);
+    the others are never read."""
+    import zipfile
+
+    from inspector.limits import limit
+
+    most = limit("MAX_JSON_BYTES")
+    out: dict[str, np.ndarray] = {}
+    try:
+        with zipfile.ZipFile(npz) as zf:
+            for info in zf.infolist():
+                name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+                if not wanted(name):
+                    continue
+                with zf.open(info) as f:
+                    version = np.lib.format.read_magic(f)
+                    if version == (1, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+                    elif version == (2, 0):
+                        shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+                    else:
+                        raise InputError(f"{_label(npz)}: array {name}: unsupported .npy version {version}")
+                    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+                    if nbytes > most or dtype.hasobject:
+                        raise InputError(f"{_label(npz)}: array {name} is {shape} {dtype} ({nbytes} bytes), more than the "
+                                         f"{most} bytes a camera array may have (INSPECTOR_MAX_JSON_BYTES)")
+                with zf.open(info) as f:
+                    out[name] = np.asarray(np.lib.format.read_array(f, allow_pickle=False))
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputError(f"{_label(npz)}: unreadable npz ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - zipfile.BadZipFile and friends
+        raise InputError(f"{_label(npz)}: unreadable npz ({type(exc).__name__}: {exc})") from None
+    return out
 
 
 def _find_image(folder: Path, stem: str) -> Path | None:
@@ -560,13 +628,7 @@ def import_idr(
     else:
         raise InputError(f"{_label(src)}: does not exist")
     s = _scale_of(scale, 1.0)
-    try:
-        with np.load(npz, allow_pickle=False) as z:
-            arrays = {k: np.asarray(z[k]) for k in z.files}
-    except (OSError, ValueError, EOFError) as exc:
-        raise InputError(f"{_label(npz)}: unreadable npz ({exc})") from None
-    except Exception as exc:  # zipfile.BadZipFile and friends
-        raise InputError(f"{_label(npz)}: unreadable npz ({type(exc).__name__}: {exc})") from None
+    arrays = _load_npz(npz, lambda k: re.fullmatch(r"(world|scale)_mat_\d+", k) is not None)
     idx = sorted(int(m.group(1)) for k in arrays if (m := re.fullmatch(r"world_mat_(\d+)", k)))
     if not idx:
         raise InputError(f"{_label(npz)}: no world_mat_<i> arrays")
@@ -609,14 +671,9 @@ def import_idr(
         m = _mask_to_coverage(_read_image(mpath))
         h, w = m.shape[:2]
         if photos:
-            import cv2
-
-            # only the size of the photograph is needed
-            ph = cv2.imread(str(photos[i]), cv2.IMREAD_UNCHANGED)
-            if ph is None:
-                raise InputError(f"{_label(photos[i])}: unreadable image")
-            if ph.shape[:2] != (h, w):
-                raise InputError(f"{_label(mpath)}: size {w}x{h}, its image {photos[i].name} is {ph.shape[1]}x{ph.shape[0]}")
+            pw, ph = _image_size(photos[i])  # only the photograph's size is needed
+            if (ph, pw) != (h, w):
+                raise InputError(f"{_label(mpath)}: size {w}x{h}, its image {photos[i].name} is {pw}x{ph}")
         cams.append(Camera(cname, w, h, K, np.zeros(5), R, t * s))
         images[cname] = _alpha_to_grey(m)
     info = {

@@ -287,6 +287,49 @@ def test_idr_errors(tmp_path):
         import_idr(tmp_path, tmp_path / "o", frame="normalised")
 
 
+def test_idr_bombs_are_refused_from_their_headers(tmp_path):
+    """Issue 27 finding 5: a 4 MB npz inflating to 4 GB, a PNG photograph decoded to learn
+    its size (3 MB: 6.2 GB), a huge text file: each one line, before any of it is inflated."""
+    import zlib
+
+    (tmp_path / "mask").mkdir()
+    (tmp_path / "image").mkdir()
+    cv2.imwrite(str(tmp_path / "mask" / "000.png"), np.zeros((8, 8), np.uint8))
+    # An npz member whose .npy header declares 3.2 GB (its data need not be there: only the
+    # header may be read).
+    import io
+    import zipfile
+
+    head = io.BytesIO()
+    np.lib.format.write_array_header_1_0(head, {"descr": "<f8", "fortran_order": False, "shape": (20_000, 20_000)})
+    with zipfile.ZipFile(tmp_path / "cameras.npz", "w") as zf:
+        zf.writestr("world_mat_0.npy", head.getvalue() + bytes(64))
+    with pytest.raises(InputError, match=r"cameras\.npz: array world_mat_0 is \(20000, 20000\) float64 \(3200000000 "
+                                         r"bytes\), more than the"):
+        import_idr(tmp_path, tmp_path / "o")
+    # A PNG that declares 100000 x 100000 pixels: its header says so, nothing is decoded.
+    np.savez(tmp_path / "cameras.npz", world_mat_0=np.eye(4), unused=np.zeros(3))
+    ihdr = b"IHDR" + (100_000).to_bytes(4, "big") * 2 + bytes([8, 0, 0, 0, 0])
+    png = (b"\x89PNG\r\n\x1a\n" + (13).to_bytes(4, "big") + ihdr + zlib.crc32(ihdr).to_bytes(4, "big")
+           + (0).to_bytes(4, "big") + b"IEND" + zlib.crc32(b"IEND").to_bytes(4, "big"))
+    (tmp_path / "image" / "000.png").write_bytes(png)
+    with pytest.raises(InputError, match=r"000\.png: 10000000000 pixels, more than the"):
+        import_idr(tmp_path, tmp_path / "o")
+
+
+def test_a_huge_text_file_is_measured_before_it_is_read(tmp_path):
+    from inspector.limits import MAX_JSON_BYTES
+    from inspector_drivers.replay.importers import _read_text
+
+    big = tmp_path / "dino_par.txt"
+    with open(big, "wb") as f:
+        f.truncate(MAX_JSON_BYTES + 1)
+    with pytest.raises(InputError) as e:
+        _read_text(big)
+    assert str(e.value) == (f"{big}: {MAX_JSON_BYTES + 1} bytes, more than the {MAX_JSON_BYTES} a dataset text file may "
+                            "have (INSPECTOR_MAX_JSON_BYTES)")
+
+
 # ------------------------------------------------------------------------------ opencv
 
 
