@@ -69,15 +69,22 @@ class Outputs:
 @dataclass(frozen=True)
 class Budget:
     """``[budget]``: how long a stage, or a plugin's lifecycle hook, may take before it is a
-    warning naming it (in ``result.json`` ``stats.warnings`` and on stderr, once per run)."""
+    warning naming it (in ``result.json`` ``stats.warnings`` and on stderr, once per run),
+    and the watchdog's limits (:mod:`inspector.watchdog`): past ``stage_limit_s`` or
+    ``inspection_limit_s`` the part is given up as ``error`` and the cell goes on."""
 
     stage_s: float = param(60.0, "seconds a stage may take on one capture", min=0.001, max=86400.0)
     hook_s: float = param(1.0, "seconds one call of a plugin's lifecycle hook (on_result...) may take",
                           min=0.001, max=86400.0)
+    stage_limit_s: float = param(120.0, "seconds after which a stage is given up: the part is 'error' naming the "
+                                 "stage and its plugin, and the cell goes on with the next part", min=0.01, max=86400.0)
+    inspection_limit_s: float = param(300.0, "seconds one inspection (all its stages) may take before it is given "
+                                      "up as 'error'", min=0.01, max=86400.0)
 
 
 #: Environment variables for the budget when the recipe does not set it.
-BUDGET_ENV = {"stage_s": "INSPECTOR_STAGE_BUDGET_S", "hook_s": "INSPECTOR_HOOK_BUDGET_S"}
+BUDGET_ENV = {"stage_s": "INSPECTOR_STAGE_BUDGET_S", "hook_s": "INSPECTOR_HOOK_BUDGET_S",
+              "stage_limit_s": "INSPECTOR_STAGE_LIMIT_S", "inspection_limit_s": "INSPECTOR_INSPECTION_LIMIT_S"}
 
 
 @dataclass(frozen=True)

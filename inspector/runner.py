@@ -41,6 +41,7 @@ from inspector.pipeline import InspectionContext
 from inspector.recipe import BUDGET_ENV, Recipe
 from inspector.reference import Reference
 from inspector.registry import OUTPUTS, Acquisition, StageSpec
+from inspector.watchdog import StageAborted, StageTimeout, call_with_limit
 
 __all__ = ["ABORTED", "Outcome", "inspect_capture", "run_batch", "exit_status", "check_output", "json_extras"]
 
@@ -141,15 +142,36 @@ def inspect_capture(
         res = _error_result(capture.name, recipe, reason, timings, capture)
         return Outcome(hooks.into(res), ctx, trace)
 
+    def aborted(reason: str) -> Outcome:
+        timings["total"] = time.perf_counter() - t_start
+        res = _error_result(capture.name, recipe, reason, timings, capture)
+        return Outcome(dataclasses.replace(res, verdict=ABORTED), ctx)
+
+    budget = recipe.budget
     for step in recipe.steps:
         if should_abort is not None and should_abort():
-            timings["total"] = time.perf_counter() - t_start
-            aborted = _error_result(capture.name, recipe, f"cancelled before stage {step.name}", timings, capture)
-            return Outcome(dataclasses.replace(aborted, verdict=ABORTED), ctx)
+            return aborted(f"cancelled before stage {step.name}")
         hooks.add(pm.before_stage(ctx, step.spec, step.name))
         t0 = time.perf_counter()
+        left = budget.inspection_limit_s - (t0 - t_start)
+        limit = min(budget.stage_limit_s, max(left, 0.0))
         try:
-            new = step.spec.run(ctx, step.params)
+            new = call_with_limit(step.spec.run, ctx, step.params, limit_s=limit, should_abort=should_abort,
+                                  name=f"stage-{step.name}")
+        except StageAborted:
+            timings[step.name] = time.perf_counter() - t0
+            return aborted(f"cancelled during stage {step.name}")
+        except StageTimeout as exc:
+            timings[step.name] = time.perf_counter() - t0
+            del exc
+            who = f"stage {step.spec.name} of {pm.stage_plugin(step.spec.name)}"
+            if limit < budget.stage_limit_s:
+                what = f"{who}: the inspection exceeded {budget.inspection_limit_s:g} s (the inspection_limit_s of [budget])"
+            else:
+                what = f"{who} exceeded {budget.stage_limit_s:g} s (the stage_limit_s of [budget])"
+            err = StageError(f"{step.name}: {what}; the part is given up, the cell goes on")
+            hooks.add(pm.on_stage_error(ctx, step.spec, step.name, err))
+            return failed(str(err))
         except Exception as exc:  # noqa: BLE001 - one capture must never stop the batch
             timings[step.name] = time.perf_counter() - t0
             hooks.add(pm.on_stage_error(ctx, step.spec, step.name, exc))
