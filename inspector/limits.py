@@ -33,6 +33,14 @@ and its file may be at most :func:`image_file_bytes` of that size (the pixel dat
 byte of pixel data is decoded: a small file declaring 30000 x 30000 pixels, or a link to a
 3 GiB file, costs nothing to refuse.
 
+A capture must also fit in memory: before a capture's images are read, :func:`check_memory`
+estimates what inspecting it will take from its cameras' sizes (:func:`inspection_bytes`, a
+model measured on the default recipe) and refuses, in one line, a capture that needs more than
+the machine's memory budget (:func:`memory_budget`: half the physical memory, or of the
+cgroup's limit when lower; ``INSPECTOR_MEMORY_BUDGET_MB`` sets it). The pixel bounds above
+are a hard cap; the budget is what a cell PC of 8-16 GB can actually hold (16 x 8192² is
+within the pixel bound and needs about 16.5 GB).
+
 Every refusal is one line naming the file and the variable that raises the bound.
 """
 
@@ -56,6 +64,9 @@ __all__ = [
     "MAX_REFERENCE_TRIANGLES",
     "MAX_REFERENCE_BYTES",
     "limit",
+    "memory_budget",
+    "inspection_bytes",
+    "check_memory",
     "read_bounded",
     "image_file_bytes",
     "json_depth",
@@ -127,6 +138,65 @@ def image_file_bytes(width: int, height: int) -> int:
     """
     raw = height * (8 * width + 8)
     return raw + raw // 100 + limit("MAX_IMAGE_METADATA_BYTES")
+
+
+#: Memory model of one inspection with the default recipe, measured as the peak RSS of
+#: ``inspector run`` on one simulated cube30 capture of 16 cameras (8-bit grey): 512² 516 MB,
+#: 1024² 692 MB, 2048² 1416 MB -> 450 MB of program and reference plus 14.4 bytes a pixel,
+#: rounded up. A colour or 16-bit image adds its decoded size beyond one byte a pixel.
+INSPECTION_BASE_BYTES = 480 * 2**20
+INSPECTION_BYTES_PER_PIXEL = 15
+
+
+def inspection_bytes(pixels: int, bytes_per_pixel: int = 1) -> int:
+    """Estimated peak memory of inspecting a capture of ``pixels`` pixels in all (bytes), whose
+    images decode to ``bytes_per_pixel`` bytes a pixel (8-bit grey: 1; 16-bit RGB: 6)."""
+    return INSPECTION_BASE_BYTES + pixels * (INSPECTION_BYTES_PER_PIXEL + max(0, bytes_per_pixel - 1))
+
+
+def _physical_memory() -> int:
+    """Bytes of memory this process may use: the physical memory, or the cgroup's limit."""
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        total = 8 * 2**30
+    for path in ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory/memory.limit_in_bytes"):
+        try:
+            with open(path) as f:
+                text = f.read().strip()
+        except OSError:
+            continue
+        if text.isdigit() and 0 < int(text) < total:
+            total = int(text)
+    return int(total)
+
+
+def memory_budget() -> tuple[int, str]:
+    """The memory one inspection may take, bytes, and where it comes from (for messages):
+    ``INSPECTOR_MEMORY_BUDGET_MB`` when set, else half the memory of this machine (or of its
+    cgroup's limit)."""
+    raw = os.environ.get("INSPECTOR_MEMORY_BUDGET_MB", "").strip()
+    if raw:
+        try:
+            mb = int(raw)
+        except ValueError:
+            mb = 0
+        if mb < 1:
+            raise InputError(f"$INSPECTOR_MEMORY_BUDGET_MB: expected a positive integer, got {raw!r}")
+        return mb * 2**20, "INSPECTOR_MEMORY_BUDGET_MB"
+    total = _physical_memory()
+    return total // 2, f"half of this machine's {total / 2**30:.1f} GB; INSPECTOR_MEMORY_BUDGET_MB sets it"
+
+
+def check_memory(label: str, cameras: int, pixels: int, error: type[Exception] = InputError,
+                 bytes_per_pixel: int = 1) -> None:
+    """Refuse (``error``, one line starting with ``label``) a capture of ``cameras`` cameras
+    and ``pixels`` pixels whose inspection would need more than :func:`memory_budget`."""
+    need = inspection_bytes(pixels, bytes_per_pixel)
+    budget, where = memory_budget()
+    if need > budget:
+        raise error(f"{label}: its {cameras} cameras ({pixels} pixels) would need about {need / 2**30:.1f} GB to "
+                    f"inspect, more than the memory budget of {budget / 2**30:.1f} GB ({where})")
 
 
 def json_depth(raw: bytes) -> int:

@@ -68,7 +68,7 @@ import numpy as np
 
 from inspector.errors import CaptureError
 from inspector.kernels.camera import is_rotation
-from inspector.limits import image_file_bytes, limit, load_json, read_bounded
+from inspector.limits import check_memory, image_file_bytes, limit, load_json, read_bounded
 from inspector.model import Camera, Capture, Rig, Truth
 from inspector.names import printable, text_problem
 
@@ -270,6 +270,7 @@ def parse_rig(data: Any, label: str = RIG_FILE) -> Rig:
     if total > most:
         raise CaptureError(f"{label}: its {len(cameras)} cameras have {total} pixels together, more than the "
                            f"{most} a capture may have (INSPECTOR_MAX_CAPTURE_PIXELS)")
+    check_memory(label, len(cameras), total, CaptureError)
     seen: dict[str, int] = {}
     for i, c in enumerate(cameras):
         if c.name in seen:

@@ -278,3 +278,28 @@ def test_sixteen_bombs_cost_no_memory(tmp_path):
     assert err[0] == "inspector: error: bombs: images/cam00.png: size 30000x30000, rig.json says 64x48 for camera cam00"
     # one decoded 30000^2 grey image alone is 858 MB
     assert maxrss_mb < baseline + 400, f"peak {maxrss_mb:.0f} MB against {baseline:.0f} MB decoding nothing"
+
+
+def test_a_capture_that_would_not_fit_in_memory_is_refused_before_its_images_are_read(capture, monkeypatch):
+    """Issue 27 finding 3: 16 x 8192² is within the pixel bounds and died with MemoryError at
+    10.1 GB; the budget refuses it from rig.json, naming what it would need."""
+    from inspector.errors import InputError
+    from inspector.limits import inspection_bytes, memory_budget
+
+    rig = json.loads((capture / "rig.json").read_text())
+    cam = rig["cameras"][0]
+    rig["cameras"] = [dict(cam, name=f"cam{i:02d}", width=8192, height=8192) for i in range(16)]
+    (capture / "rig.json").write_text(json.dumps(rig))
+    monkeypatch.setenv("INSPECTOR_MEMORY_BUDGET_MB", "12288")  # a 24 GB cell PC's half
+    pixels = 16 * 8192 * 8192
+    assert _refusal(capture) == (f"rig.json: its 16 cameras ({pixels} pixels) would need about "
+                                 f"{inspection_bytes(pixels) / 2**30:.1f} GB to inspect, more than the memory budget of "
+                                 "12.0 GB (INSPECTOR_MEMORY_BUDGET_MB)")
+    assert inspection_bytes(pixels) > 15 * 2**30
+    # The default budget is half this machine's memory: a 16 x 1 MP rig fits on any cell PC.
+    monkeypatch.delenv("INSPECTOR_MEMORY_BUDGET_MB")
+    budget, where = memory_budget()
+    assert budget >= inspection_bytes(16 * 1024 * 1024) and where.startswith("half of this machine's")
+    monkeypatch.setenv("INSPECTOR_MEMORY_BUDGET_MB", "lots")
+    with pytest.raises(InputError, match=r"INSPECTOR_MEMORY_BUDGET_MB: expected a positive integer, got 'lots'"):
+        memory_budget()
