@@ -496,3 +496,35 @@ def test_the_plugin_loads_without_asyncua_and_the_readme_documents_the_model():
     readme = (ROOT / "README.md").read_text()
     assert model.markdown_table() in readme  # the README's table is the model's, node for node
     assert "examples/plc_client.py" in readme and "inspector serve" in readme
+
+
+def test_failed_logins_are_slowed_per_user_and_for_everyone():
+    """Issue 27 finding 9: 48 password guesses in 6.4 s, each a PBKDF2 check on the event loop."""
+    from inspector_drivers.opcua.config import Credentials
+    from inspector_drivers.opcua.security import LoginThrottle, UserManager
+
+    now = [0.0]
+    checks = []
+
+    class Counting(Credentials):
+        def check(self, user, password):
+            checks.append(user)
+            return super().check(user, password)
+
+    lines = []
+    users = UserManager(Counting(USER, PASSWORD), lines.append, LoginThrottle(clock=lambda: now[0]))
+    for _ in range(48):  # one guesser, as fast as it can: the clock barely moves
+        assert users.get_user(None, USER, "guess") is None
+        now[0] += 0.13
+    assert len(checks) <= 3 + 3  # three free, then one per back-off (1, 2, 4 ... s)
+    assert any("too many failed logins" in line for line in lines)
+    assert users.get_user(None, USER, PASSWORD) is None  # locked: even the right password waits
+    now[0] += 61.0
+    assert users.get_user(None, USER, PASSWORD) is not None  # after the back-off, and the record is cleared
+    assert users.get_user(None, USER, "guess") is None and users.get_user(None, USER, PASSWORD) is not None
+    # Many names: the shared record slows them all.
+    before = len(checks)
+    for i in range(40):
+        users.get_user(None, f"name{i}", "guess")
+        now[0] += 0.1
+    assert len(checks) - before <= 10 + 4
