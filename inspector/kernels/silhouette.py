@@ -47,8 +47,12 @@ __all__ = [
     "Components",
     "grow_box",
     "subpixel_contour",
+    "contour_bumps",
     "touches_border",
     "sample_bilinear",
+    "edge_profile",
+    "edge_half_width",
+    "near_mask",
 ]
 
 
@@ -269,7 +273,8 @@ def coverage_levels(signal: np.ndarray, level: float) -> tuple[float, float]:
     )
 
 
-def levels_from_histogram(values: np.ndarray, counts: np.ndarray, level: float) -> tuple[float, float]:
+def levels_from_histogram(values: np.ndarray, counts: np.ndarray, level: float,
+                          interpolate: bool = False) -> tuple[float, float]:
     """:func:`coverage_levels` from a histogram of the signal (exact, no pixel pass).
 
     Parameters
@@ -280,11 +285,17 @@ def levels_from_histogram(values: np.ndarray, counts: np.ndarray, level: float) 
         Pixels having each value.
     level : float
 
+    interpolate : bool
+        Each value stands for a bin of width 1 (an integer grey level, whose true level may
+        lie anywhere within +-0.5): the median is interpolated linearly within its bin
+        (the grouped-data median), not rounded to a value.
+
     Returns
     -------
     background_level, object_level : float
         Identical to ``coverage_levels(np.repeat(values, counts), level)``: the middle
-        element(s) are picked from the cumulative counts and passed to ``np.median``.
+        element(s) are picked from the cumulative counts and passed to ``np.median``
+        (``interpolate``: the grouped median instead).
     """
     values = np.asarray(values, np.float32)
     counts = np.asarray(counts, np.int64)
@@ -296,6 +307,10 @@ def levels_from_histogram(values: np.ndarray, counts: np.ndarray, level: float) 
         n = int(cum[-1]) if len(cum) else 0
         if n == 0:
             return None
+        if interpolate:
+            i = int(np.searchsorted(cum, 0.5 * n))  # the bin holding the middle
+            below = float(cum[i - 1]) if i else 0.0
+            return float(v[i]) - 0.5 + (0.5 * n - below) / float(c[order][i])
         ranks = [n // 2] if n % 2 else [n // 2 - 1, n // 2]
         return float(np.median(v[np.searchsorted(cum, ranks, side="right")]))
 
@@ -477,6 +492,7 @@ def subpixel_contour(
     margin: float = 1.0,
     origin: tuple[int, int] = (0, 0),
     image_shape: tuple[int, int] | None = None,
+    pieces: list[tuple[np.ndarray, bool]] | None = None,
 ) -> np.ndarray:
     """Sub-pixel contour points of the object, about one per contour pixel.
 
@@ -496,6 +512,10 @@ def subpixel_contour(
         same as on the whole image.
     image_shape : (H, W), optional
         Size of the whole image; required with a non-zero ``origin``.
+    pieces : list, optional
+        When given, each contour is appended to it as ``(points, closed)``: its points
+        ``(n, 2)`` in order along the contour (those returned, the same values) and whether
+        it is a closed loop none of whose points was dropped at the border.
 
     Returns
     -------
@@ -521,11 +541,118 @@ def subpixel_contour(
     pts = [c for c in marching_squares(padded, 0.5) if len(c) >= 3]
     if not pts:
         return np.zeros((0, 2))
-    rc = np.concatenate([c[:-1] if np.allclose(c[0], c[-1]) else c for c in pts])
+    closed = [bool(np.allclose(c[0], c[-1])) for c in pts]
+    loops = [c[:-1] if cl else c for c, cl in zip(pts, closed)]
+    rc = np.concatenate(loops)
     # Integer offsets summed first: the same float operations as on the whole image.
     uv = np.stack([rc[:, 1] - 1 + (x0 + int(origin[0])), rc[:, 0] - 1 + (y0 + int(origin[1]))], axis=1)
     inside = (uv[:, 0] >= margin) & (uv[:, 0] <= w - 1 - margin) & (uv[:, 1] >= margin) & (uv[:, 1] <= h - 1 - margin)
+    if pieces is not None:
+        start = 0
+        for c, cl in zip(loops, closed):
+            part = slice(start, start + len(c))
+            start += len(c)
+            pieces.append((uv[part][inside[part]], cl and bool(inside[part].all())))
     return uv[inside]
+
+
+def contour_bumps(
+    pieces: list[tuple[np.ndarray, bool]],
+    soft: np.ndarray,
+    *,
+    origin: tuple[int, int] = (0, 0),
+    side: tuple[int, int] = (8, 24),
+    centre: int = 7,
+    collinear_deg: float = 4.0,
+    side_rms_px: float = 0.2,
+    height_px: float = 0.5,
+) -> np.ndarray:
+    """Small outward bumps on otherwise straight stretches of contour: specks of dust on the
+    edge, not the part's shape.
+
+    At each point of a closed contour (:func:`subpixel_contour`'s ``pieces``) the points
+    ``side[0]`` to ``side[1]`` steps before it and after it (about one per pixel) are fitted
+    with a line each. Where both sides are straight (RMS within ``side_rms_px``) and
+    collinear (within ``collinear_deg``), a point of the ``centre`` steps around it lying
+    more than ``height_px`` beyond *both* lines, on the background's side, makes it a bump.
+    A speck 1-4 px across on the edge bulges it by about its size; a corner of the part
+    lies on both its sides' lines, a convex curve inside them, and a concave one (a hole's
+    rim) turns its sides by more than ``collinear_deg`` unless its radius is above ~700 px,
+    where it departs from them by less than 0.3 px: none qualifies. (The sides start
+    ``side[0]`` points away so that a speck's bump, about 2 points per pixel of its size
+    where the contour goes round it, stays out of them.)
+
+    Parameters
+    ----------
+    pieces : list of ((n, 2) float, bool)
+        Contours in order, image coordinates, and whether each is closed.
+    soft : (h, w) float32
+        Coverage (tells the background's side), a crop at ``origin`` (x0, y0).
+
+    Returns
+    -------
+    (K, 2) float64
+        The points ``(u, v)`` found on bumps.
+    """
+    out = []
+    lo, hi = side
+    mid = np.arange(-centre, centre + 1)
+    cos_max = math.cos(math.radians(collinear_deg))
+    m = hi - lo + 1  # points per side
+
+    def lines(P: np.ndarray, first: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For every k, the line fitted to the points k + first .. k + first + m - 1 of the
+        closed contour P (n, 2): centroid (n, 2), unit normal (n, 2), RMS distance (n,);
+        window sums from cumulative sums (O(n))."""
+        n = len(P)
+        x, y = P[:, 0] - P[:, 0].mean(), P[:, 1] - P[:, 1].mean()  # centred: no cancellation
+        idx = (np.arange(n)[:, None] + np.array([first, first + m])[None, :]) % n
+
+        def wsum(a: np.ndarray) -> np.ndarray:
+            c = np.concatenate([[0.0], np.cumsum(np.concatenate([a, a]))])
+            start = idx[:, 0]
+            return c[start + m] - c[start]
+
+        sx, sy = wsum(x) / m, wsum(y) / m
+        sxx, syy, sxy = wsum(x * x) / m - sx * sx, wsum(y * y) / m - sy * sy, wsum(x * y) / m - sx * sy
+        a = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        nrm = np.stack([-np.sin(a), np.cos(a)], axis=1)
+        tr, det = sxx + syy, sxx * syy - sxy * sxy
+        lam = 0.5 * tr - np.sqrt(np.maximum(0.25 * tr * tr - det, 0.0))  # the smaller eigenvalue
+        cen = np.stack([sx + P[:, 0].mean(), sy + P[:, 1].mean()], axis=1)
+        return cen, nrm, np.sqrt(np.maximum(lam, 0.0))
+
+    for pts, closed in pieces:
+        n = len(pts)
+        if not closed or n < 2 * hi + 1:
+            continue
+        cl, nl, rl = lines(pts, -hi)
+        cr, nr, rr = lines(pts, lo)
+        dot = (nl * nr).sum(axis=1)
+        cand = (np.abs(dot) >= cos_max) & (rl <= side_rms_px) & (rr <= side_rms_px)
+        if not cand.any():
+            continue
+        k = np.flatnonzero(cand)
+        cl, nl, cr = cl[k], nl[k], cr[k]
+        nr = nr[k] * np.where(dot[k] < 0, -1.0, 1.0)[:, None]  # the same side as nl
+        C = pts[(k[:, None] + mid[None, :]) % n]  # (K, 2 centre + 1, 2)
+        dl = ((C - cl[:, None, :]) * nl[:, None, :]).sum(axis=2)
+        dr = ((C - cr[:, None, :]) * nr[:, None, :]).sum(axis=2)
+        beyond_plus = np.minimum(dl, dr).max(axis=1) > height_px  # beyond both lines on +nl's side
+        beyond_minus = np.maximum(dl, dr).min(axis=1) < -height_px
+        sel = beyond_plus | beyond_minus
+        if not sel.any():
+            continue
+        k, cl, nl, cr, beyond_plus = k[sel], cl[sel], nl[sel], cr[sel], beyond_plus[sel]
+        # The background's side of the lines: where the coverage, 3 px off them, is lower.
+        c = 0.5 * (cl + cr) - np.asarray(origin, float)
+        plus = sample_bilinear(soft, c[:, 0] + 3.0 * nl[:, 0], c[:, 1] + 3.0 * nl[:, 1], np.nan)
+        minus = sample_bilinear(soft, c[:, 0] - 3.0 * nl[:, 0], c[:, 1] - 3.0 * nl[:, 1], np.nan)
+        known = np.isfinite(plus) & np.isfinite(minus) & (np.abs(plus - minus) > 0.5)
+        bump = known & np.where(beyond_plus, plus < minus, plus > minus)
+        if bump.any():
+            out.append(pts[k[bump]])
+    return np.concatenate(out) if out else np.zeros((0, 2))
 
 
 def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray, outside: float | np.ndarray = 0.0) -> np.ndarray:
@@ -549,6 +676,86 @@ def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray, outside: fl
     d = flat[i00 + w + 1]
     val = (a * (1 - fx) + b * fx) * (1 - fy) + (c * (1 - fx) + d * fx) * fy
     return np.where(valid, val, outside)
+
+
+def edge_profile(
+    raw: np.ndarray,
+    uv: np.ndarray,
+    *,
+    reach: float = 10.0,
+    step: float = 0.5,
+    max_points: int = 200,
+    origin: tuple[int, int] = (0, 0),
+) -> tuple[np.ndarray, np.ndarray]:
+    """The camera's measured edge profile: the median coverage across the contour.
+
+    At up to ``max_points`` contour points, evenly spread, the coverage is sampled along the
+    edge's normal (the coverage gradient's direction, towards the object) every ``step`` px
+    out to ``reach`` px on both sides; the profile is the median over the points at each
+    offset. A sharp anti-aliased edge goes from 0 to 1 within about 1.5 px of the contour;
+    defocus, motion blur and blooming widen it (a Gaussian of sigma 1.5 px: about 4 px).
+
+    Parameters
+    ----------
+    raw : (h, w) float32
+        Coverage (not clipped), possibly a crop whose pixel (0, 0) is the image's ``origin``.
+    uv : (M, 2) float
+        Contour points, image coordinates.
+    origin : (x0, y0) int
+
+    Returns
+    -------
+    offsets : (K,) float64
+        Signed distances along the normal, px (positive: towards the object).
+    profile : (K,) float64
+        Median coverage at each offset (a sample beyond ``raw`` counts as 0 outside, 1
+        inside; NaN for all offsets when no point has a usable normal).
+    """
+    offsets = np.arange(-reach, reach + step / 2, step)
+    if len(uv) == 0:
+        return offsets, np.full(len(offsets), np.nan)
+    pick = np.linspace(0, len(uv) - 1, min(len(uv), max_points)).round().astype(np.intp)
+    u = np.asarray(uv, float)[pick, 0] - origin[0]
+    v = np.asarray(uv, float)[pick, 1] - origin[1]
+    c = np.clip(raw, 0.0, 1.0)
+    gx = sample_bilinear(c, u + 1.0, v, np.nan) - sample_bilinear(c, u - 1.0, v, np.nan)
+    gy = sample_bilinear(c, u, v + 1.0, np.nan) - sample_bilinear(c, u, v - 1.0, np.nan)
+    norm = np.hypot(gx, gy)
+    ok = np.isfinite(norm) & (norm > 1e-6)
+    if not ok.any():
+        return offsets, np.full(len(offsets), np.nan)
+    nx, ny = gx[ok] / norm[ok], gy[ok] / norm[ok]
+    su = u[ok, None] + offsets[None, :] * nx[:, None]
+    sv = v[ok, None] + offsets[None, :] * ny[:, None]
+    samples = sample_bilinear(raw, su, sv, np.nan)
+    # A sample beyond ``raw`` (the image's border) counts as the far level of its side.
+    samples = np.where(np.isnan(samples), (offsets > 0).astype(float)[None, :], samples)
+    return offsets, np.median(samples, axis=0)
+
+
+def edge_half_width(offsets: np.ndarray, profile: np.ndarray, tol: float = 0.02) -> float:
+    """How far from the contour the edge profile still differs from a step, px.
+
+    The largest ``|offset|`` at which ``profile`` (:func:`edge_profile`) is more than ``tol``
+    from its far level (0 outside, 1 inside); offsets with no sample count as settled.
+    """
+    step = np.where(offsets > 0, 1.0, 0.0)
+    off = np.abs(np.asarray(profile) - step) > tol
+    off &= offsets != 0
+    off &= np.isfinite(profile)
+    return float(np.abs(offsets[off]).max()) if off.any() else 0.0
+
+
+def near_mask(uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Which points ``uv`` (M, 2) fall on a set pixel of ``mask`` (H, W) bool (the pixel
+    holding the point, rounded); points outside the image are not."""
+    h, w = mask.shape
+    j = np.rint(np.asarray(uv, float)[:, 0]).astype(np.intp)
+    i = np.rint(np.asarray(uv, float)[:, 1]).astype(np.intp)
+    inside = (j >= 0) & (j < w) & (i >= 0) & (i < h)
+    out = np.zeros(len(j), bool)
+    out[inside] = mask[i[inside], j[inside]]
+    return out
 
 
 def inside_map(soft: np.ndarray, margin: int = 16) -> np.ndarray:

@@ -53,19 +53,51 @@ __all__ = [
     "SYMMETRY",
     "Camera",
     "check_symmetry",
+    "OPTICS",
     "coverage",
+    "empty_field",
     "fibonacci_rig",
     "make_capture",
     "make_part",
+    "optics_image",
     "self_check",
     "silhouette",
     "symmetry_group",
     "to_image",
+    "vignetting",
 ]
 
+#: Imaging conditions with what real optics do to an image (issue 26): the ``grey`` condition
+#: (anti-aliased, noise sigma 2) with one effect, or all of them, applied to the noise-free
+#: image before the noise (:func:`optics_image`). ``reference``: the capture holds the empty
+#: field of each camera (``background/<cam>.png``, :func:`empty_field`: the same vignetting and
+#: dust, 4 frames averaged); the ``-noref`` variants leave it out (the product must then model
+#: the background itself). Effects: ``vignetting`` the background's level at the image corners
+#: (radial polynomial, 1 at the centre); ``dust`` dark specks per camera, 1-4 px across, 30-90 %
+#: deep, in the same places in every capture of that camera; ``bloom`` (fraction of the light,
+#: halo radius px); ``defocus`` Gaussian sigma px; ``motion`` blur length px along a direction
+#: fixed per camera.
+OPTICS: dict[str, dict[str, Any]] = {
+    "vignetting": {"vignetting": 0.6, "reference": True},
+    "vignetting-noref": {"vignetting": 0.6, "reference": False},
+    "dust": {"dust": 40, "reference": True},
+    "dust-noref": {"dust": 40, "reference": False},
+    "blooming": {"bloom": (0.15, 6.0), "reference": False},
+    "defocus": {"defocus": 1.5, "reference": False},
+    "motion": {"motion": 3.0, "reference": False},
+    "optics": {"vignetting": 0.6, "dust": 40, "bloom": (0.15, 6.0), "defocus": 1.5, "motion": 3.0, "reference": True},
+    "optics-noref": {"vignetting": 0.6, "dust": 40, "bloom": (0.15, 6.0), "defocus": 1.5, "motion": 3.0,
+                     "reference": False},
+}
 #: Imaging conditions of the acceptance requirement, and ``exact``: what the silhouettes
-#: themselves allow (no noise, 16-bit, so the image is the exact coverage to 1/50000).
-CONDITIONS = ("grey", "binary", "strong", "exact")
+#: themselves allow (no noise, 16-bit, so the image is the exact coverage to 1/50000); then
+#: the optics conditions (:data:`OPTICS`).
+CONDITIONS = ("grey", "binary", "strong", "exact", *OPTICS)
+#: Seed of the dust specks' places (with the camera's index): a property of the rig, the same
+#: in every capture.
+DUST_SEED = 2600
+#: Frames averaged into the empty-field reference image.
+REFERENCE_FRAMES = 4
 #: Defects applied to the true part (the reference stays nominal).
 DEFECTS = ("none", "scale", "bump_removed", "scale_up", "bump_added")
 #: Grey levels (background, object) for a dark object on a bright (backlit) background.
@@ -249,6 +281,24 @@ def _gear(teeth: int = 20, module: float = 2.0, pressure_deg: float = 20.0) -> t
     return _difference([body, _ncyl(6.0, -6.0, 6.0, 64)])
 
 
+def _cube() -> trimesh.Trimesh:
+    """Cube, 30 mm (the optics rows' plain part: long straight silhouette edges and sharp corners)."""
+    return _box((30.0, 30.0, 30.0))
+
+
+def _bracket() -> trimesh.Trimesh:
+    """L-bracket 44 x 30 x 30 mm: base plate 44 x 30 x 5 with two Ø5 holes and a 16 x 9 x 2.5 mm
+    pocket, flange 44 x 5 x 30 standing on its y = 0 edge with two Ø6 holes."""
+    base = _box((44.0, 30.0, 5.0), (0.0, 0.0, -12.5))
+    flange = _box((44.0, 5.0, 30.0), (0.0, -12.5, 0.0))
+    cutters = [
+        *[_cyl(2.5, (x, 6.0, -16.0), (x, 6.0, -9.0)) for x in (-14.0, 14.0)],
+        *[_cyl(3.0, (x, -16.0, 5.0), (x, -9.0, 5.0)) for x in (-11.0, 11.0)],
+        _box((16.0, 9.0, 3.5), (0.0, 6.0, -10.75)),
+    ]
+    return _difference([_union([base, flange]), *cutters])
+
+
 PARTS: dict[str, Any] = {
     "torus": _torus,
     "hexnut": _hexnut,
@@ -261,6 +311,9 @@ PARTS: dict[str, Any] = {
     "keyshaft": _keyshaft,
     "flatshaft": _flatshaft,
     "gear": _gear,
+    # The optics rows' parts (issue 26), appended so the other parts' seed offsets stay.
+    "cube": _cube,
+    "bracket": _bracket,
 }
 
 
@@ -327,7 +380,23 @@ SYMMETRY: dict[str, Any] = {
     "keyshaft": lambda: [np.eye(3)],  # the step removes the flip through the keyway
     "flatshaft": lambda: [np.eye(3), flip(0.0)],  # the flat (+x), centred on the length
     "gear": lambda: [np.eye(3), flip(0.0)],  # the missing tooth (+x): the flip through it
+    "cube": lambda: _cube_group(),  # the 24 rotations of the cube
+    "bracket": lambda: [np.eye(3)],
 }
+
+
+def _cube_group() -> list[np.ndarray]:
+    """The cube's rotation group: the 24 signed permutation matrices of determinant +1."""
+    import itertools
+
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            S = np.zeros((3, 3))
+            S[range(3), perm] = signs
+            if np.linalg.det(S) > 0:
+                out.append(S)
+    return out
 
 
 def symmetry_group(name: str) -> list[np.ndarray] | None:
@@ -697,6 +766,107 @@ def to_image(cov: np.ndarray, condition: str, polarity: str, rng: np.random.Gene
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
+# --------------------------------------------------------------------------- real optics (issue 26)
+
+
+def vignetting(height: int, width: int, corner: float) -> np.ndarray:
+    """Relative illumination (h, w) float64: 1 at the image centre, ``corner`` at the corners,
+    a radial polynomial ``1 - (1 - corner) (0.6 rho^2 + 0.4 rho^4)`` (``rho``: distance from the
+    centre over the corner's)."""
+    y, x = np.mgrid[0:height, 0:width].astype(float)
+    cy, cx = (height - 1) / 2.0, (width - 1) / 2.0
+    rho2 = ((x - cx) ** 2 + (y - cy) ** 2) / (cx * cx + cy * cy)
+    return 1.0 - (1.0 - corner) * (0.6 * rho2 + 0.4 * rho2 * rho2)
+
+
+def dust(height: int, width: int, count: int, camera_index: int) -> np.ndarray:
+    """Transmission (h, w) float64 of ``count`` dark specks on camera ``camera_index``'s optics:
+    discs 1-4 px across, taking 30-90 % of the light at full cover (exact-ish pixel cover, 4x4
+    sub-samples), in places fixed by :data:`DUST_SEED` and the camera (the same in every capture)."""
+    rng = np.random.default_rng([DUST_SEED, camera_index])
+    t = np.ones((height, width))
+    sub = (np.arange(4) + 0.5) / 4.0 - 0.5
+    for _ in range(count):
+        cx, cy = rng.uniform(0, width - 1), rng.uniform(0, height - 1)
+        r, depth = rng.uniform(0.5, 2.0), rng.uniform(0.3, 0.9)
+        j0, j1 = max(int(cx - r) - 1, 0), min(int(cx + r) + 2, width)
+        i0, i1 = max(int(cy - r) - 1, 0), min(int(cy + r) + 2, height)
+        jj, ii = np.meshgrid(np.arange(j0, j1), np.arange(i0, i1))
+        dx = jj[..., None, None] + sub[None, None, None, :] - cx
+        dy = ii[..., None, None] + sub[None, None, :, None] - cy
+        cover = ((dx * dx + dy * dy) <= r * r).mean(axis=(2, 3))
+        t[i0:i1, j0:j1] *= 1.0 - depth * cover
+    return t
+
+
+def _bloom(img: np.ndarray, fraction: float, radius: float) -> np.ndarray:
+    """``fraction`` of the light spread in a Gaussian halo (sigma radius / 2, cut at ``radius``)."""
+    n = int(math.ceil(radius))
+    y, x = np.mgrid[-n:n + 1, -n:n + 1].astype(float)
+    k = np.exp(-(x * x + y * y) / (2.0 * (radius / 2.0) ** 2)) * (x * x + y * y <= radius * radius)
+    halo = cv2.filter2D(img, -1, k / k.sum(), borderType=cv2.BORDER_REFLECT)
+    return (1.0 - fraction) * img + fraction * halo
+
+
+def _motion(img: np.ndarray, length: float, angle: float) -> np.ndarray:
+    """Box blur of ``length`` px along ``angle`` (rad), centred: the part's position mid-exposure."""
+    n = int(math.ceil(length / 2.0)) + 1
+    k = np.zeros((2 * n + 1, 2 * n + 1))
+    for s in np.linspace(-length / 2.0, length / 2.0, 401):
+        x, y = n + s * math.cos(angle), n + s * math.sin(angle)
+        j, i = int(math.floor(x)), int(math.floor(y))
+        fx, fy = x - j, y - i
+        k[i, j] += (1 - fx) * (1 - fy)
+        k[i, j + 1] += fx * (1 - fy)
+        k[i + 1, j] += (1 - fx) * fy
+        k[i + 1, j + 1] += fx * fy
+    return cv2.filter2D(img, -1, k / k.sum(), borderType=cv2.BORDER_REFLECT)
+
+
+def _field(condition: str, height: int, width: int, camera_index: int) -> np.ndarray:
+    """What the optics of ``condition`` multiply the image by on this camera (vignetting x dust)."""
+    fx = OPTICS[condition]
+    t = np.ones((height, width))
+    if "vignetting" in fx:
+        t *= vignetting(height, width, fx["vignetting"])
+    if "dust" in fx:
+        t *= dust(height, width, fx["dust"], camera_index)
+    return t
+
+
+def optics_image(cov: np.ndarray, condition: str, polarity: str, rng: np.random.Generator,
+                 camera_index: int) -> np.ndarray:
+    """Image (h, w) uint8 of a coverage map under an optics ``condition`` (:data:`OPTICS`).
+
+    The noise-free grey image of the ``grey`` condition, then in order: motion blur (its
+    direction fixed per camera), defocus, blooming, times vignetting and dust; then Gaussian
+    noise sigma 2, rounded.
+    """
+    fx = OPTICS[condition]
+    bg, fg = LEVELS_DARK if polarity == "dark-object" else LEVELS_DARK[::-1]
+    img: np.ndarray = (bg + (fg - bg) * cov).astype(np.float32)
+    if "motion" in fx:
+        angle = np.random.default_rng([DUST_SEED + 1, camera_index]).uniform(0.0, math.pi)
+        img = _motion(img, fx["motion"], angle)
+    if "defocus" in fx:
+        img = cv2.GaussianBlur(img, (0, 0), fx["defocus"], borderType=cv2.BORDER_REFLECT)
+    if "bloom" in fx:
+        img = _bloom(img, *fx["bloom"])
+    h, w = cov.shape
+    img = img * _field(condition, h, w, camera_index) + rng.normal(0.0, 2.0, cov.shape)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def empty_field(condition: str, polarity: str, shape: tuple[int, int], rng: np.random.Generator,
+                camera_index: int) -> np.ndarray:
+    """The empty rig's image (h, w) uint8 of one camera under ``condition``: the background level
+    times vignetting and dust, :data:`REFERENCE_FRAMES` noisy frames averaged."""
+    bg = (LEVELS_DARK if polarity == "dark-object" else LEVELS_DARK[::-1])[0]
+    clean = bg * _field(condition, shape[0], shape[1], camera_index)
+    frames = [clean + rng.normal(0.0, 2.0, shape) for _ in range(REFERENCE_FRAMES)]
+    return np.clip(np.rint(np.mean(frames, axis=0)), 0, 255).astype(np.uint8)
+
+
 # --------------------------------------------------------------------------- capture folders
 
 
@@ -766,7 +936,7 @@ def make_capture(
     posed_nominal.apply_transform(pose)
     t0 = time.perf_counter()
     change = []
-    for cam in cams:
+    for k, cam in enumerate(cams):
         sil = silhouette(world, cam)
         # How much of the defect any silhouette shows at all (px^2): a dent that no camera
         # sees on its contour is invisible to every silhouette method.
@@ -776,8 +946,15 @@ def make_capture(
         inside = shapely.clip_by_rect(sil, -0.5, -0.5, cam.width - 0.5, cam.height - 0.5).area
         if abs(cov.sum() - inside) > 1e-6:
             raise AssertionError(f"{name} {cam.name}: coverage sum {cov.sum():.9f} != silhouette area {inside:.9f}")
-        if not cv2.imwrite(str(cap / "images" / f"{cam.name}.png"), to_image(cov, condition, polarity, rng)):
+        img = (optics_image(cov, condition, polarity, rng, k) if condition in OPTICS
+               else to_image(cov, condition, polarity, rng))
+        if not cv2.imwrite(str(cap / "images" / f"{cam.name}.png"), img):
             raise OSError(f"could not write {cap / 'images' / cam.name}.png")
+        if condition in OPTICS and OPTICS[condition]["reference"]:
+            (cap / "background").mkdir(exist_ok=True)
+            ref = empty_field(condition, polarity, cov.shape, np.random.default_rng([seed, 1 + k]), k)
+            if not cv2.imwrite(str(cap / "background" / f"{cam.name}.png"), ref):
+                raise OSError(f"could not write {cap / 'background' / cam.name}.png")
     render_s = time.perf_counter() - t0
 
     (cap / "rig.json").write_text(json.dumps({"units": "mm", "cameras": [c.to_json() for c in cams]}, indent=1))
@@ -791,6 +968,7 @@ def make_capture(
     np.savez(tdir / "true_world.npz", vertices=world.vertices, faces=world.faces)
     truth = {
         "part": part, "condition": condition, "defect": defect_info, "seed": seed, "polarity": polarity,
+        "optics": OPTICS.get(condition),
         "pose": pose.tolist(), "footprint_mm": footprint_mm(cams, pose[:3, 3]),
         "silhouette_change_px2": change,
         "symmetry": None if SYMMETRY.get(part) is None else [S.tolist() for S in symmetry_group(part)],

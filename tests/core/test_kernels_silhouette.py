@@ -374,3 +374,114 @@ def test_marching_squares_equals_skimage_find_contours(kind):
     assert len(got) > 250 and np.array_equal(got, want)
     with pytest.raises(ValueError, match="2x2"):
         sk.marching_squares(np.zeros((1, 5)), 0.5)
+
+
+# --------------------------------------------------------------------------- real optics (issue 26)
+
+
+def _half_plane(h=80, w=80, edge=40.3, sigma=0.0):
+    """Coverage of the half plane u <= ``edge`` (exact per column), optionally Gaussian-blurred."""
+    import cv2
+
+    cov = np.clip(edge + 0.5 - np.arange(w, dtype=np.float32), 0.0, 1.0)[None, :].repeat(h, axis=0)
+    return cv2.GaussianBlur(cov, (0, 0), sigma, borderType=cv2.BORDER_REPLICATE) if sigma > 0 else cov
+
+
+def test_the_edge_profile_measures_how_wide_an_edge_is():
+    sharp = _half_plane(edge=40.5)  # (a pixel edge: the interpolated coverage is 0.5 on it)
+    uv = np.stack([np.full(30, 40.5), np.arange(25.0, 55.0)], axis=1)
+    offsets, prof = sk.edge_profile(sharp, uv)
+    assert prof[np.searchsorted(offsets, 0.0)] == pytest.approx(0.5, abs=1e-6)
+    # positive offsets: towards the object (smaller u here)
+    assert prof[offsets < -1.0].max() < 1e-6 and prof[offsets > 1.0].min() > 1 - 1e-6
+    assert sk.edge_half_width(offsets, prof) <= 1.5
+    blurred = _half_plane(sigma=1.5)
+    w = sk.edge_half_width(*sk.edge_profile(blurred, uv))
+    assert 3.0 <= w <= 4.5  # a Gaussian of sigma 1.5 px is within 2 % of its levels at ~3.3 px
+    # a crop at an origin gives the same profile
+    o2, p2 = sk.edge_profile(blurred[10:70, 20:75], uv, origin=(20, 10))
+    np.testing.assert_allclose(p2, sk.edge_profile(blurred, uv)[1])
+
+
+def test_a_wide_window_finds_a_blurred_edge_where_the_narrow_one_cannot():
+    """Area refinement over a window that holds the whole blurred profile is exact for a
+    straight edge; the standard +-2 px window is not clean there and keeps the
+    marching-squares position."""
+    for edge in (40.3, 40.5, 40.8):
+        raw = _half_plane(edge=edge, sigma=1.5)
+        mask = raw >= 0.5
+        uv = sk.subpixel_contour(np.clip(raw, 0, 1), mask)
+        wide = sk.refine_contour_area(uv, raw, half_window=6)
+        rows = wide[np.abs(wide[:, 1] - np.rint(wide[:, 1])) < 1e-9]
+        inner = rows[(rows[:, 1] > 10) & (rows[:, 1] < 70)]
+        np.testing.assert_allclose(inner[:, 0], edge, atol=2e-3)
+
+
+def test_contour_bumps_find_a_speck_on_a_straight_edge_not_corners_or_curves():
+    # A square (corners), a disc (a convex curve), a hole in a plate (a concave one).
+    h = w = 200
+    square = np.zeros((h, w), np.float32)
+    square[50:150, 50:150] = 1.0
+    disc = disc_coverage(h, w, 100.3, 99.6, 60.2).astype(np.float32)
+    plate = (1.0 - disc_coverage(h, w, 100.3, 99.6, 45.2)).astype(np.float32)
+    plate[:, :5] = plate[:, -5:] = plate[:5, :] = plate[-5:, :] = 0.0  # the plate inside the view
+    for cov in (square, disc, plate):
+        pieces = []
+        sk.subpixel_contour(cov, cov >= 0.5, pieces=pieces)
+        assert all(closed for _, closed in pieces)
+        assert len(sk.contour_bumps(pieces, cov)) == 0
+    # A speck of radius 2 px just outside the square's right edge joins it: a bump.
+    speck = disc_coverage(h, w, 151.5, 100.0, 2.0).astype(np.float32)
+    cov = np.maximum(square, speck)
+    pieces = []
+    sk.subpixel_contour(cov, cov >= 0.5, pieces=pieces)
+    bumps = sk.contour_bumps(pieces, cov)
+    assert len(bumps) >= 1
+    assert np.all(np.hypot(bumps[:, 0] - 151.5, bumps[:, 1] - 100.0) < 4.0)
+
+
+def test_near_mask_reads_the_pixel_holding_each_point():
+    m = np.zeros((10, 10), bool)
+    m[3, 4] = True
+    got = sk.near_mask(np.array([[4.2, 2.6], [4.6, 3.0], [-3.0, 3.0], [4.0, 3.4]]), m)
+    assert got.tolist() == [True, False, False, True]
+
+
+def test_the_background_level_of_an_uneven_field_and_its_specks():
+    from inspector.kernels import background as bk
+
+    h, w = 256, 320
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    shade = 1.0 - 0.35 * (((xx - 160) / 200) ** 2 + ((yy - 128) / 160) ** 2)  # 35 % down at the sides
+    part = disc_coverage(h, w, 150.2, 120.7, 50.0)
+    rng = np.random.default_rng(1)
+    img = (shade * (200.0 - 160.0 * part) + rng.normal(0, 2.0, (h, w))).astype(np.float32)
+    f = bk.background_level(img, "dark-object")
+    assert f.spread > 0.2 and f.blocks < f.blocks_level.size
+    rel = (f.level / shade) / np.median(f.level / shade)
+    near = (part == 0) & (disc_coverage(h, w, 150.2, 120.7, 60.0) > 0)
+    assert np.abs(rel - 1.0)[near].max() < 0.01  # next to the part, where its edge is judged
+    flat = bk.flat_field_u8(np.clip(np.rint(img), 0, 255).astype(np.uint8), (f.reference / f.level).astype(np.float32))
+    assert flat.dtype == np.uint8 and abs(float(np.median(flat[part == 0])) - f.reference) < 2.0  # (+0.67 sigma: q75)
+    # an even field is seen as even
+    assert bk.background_level(rng.normal(200, 2, (h, w)).astype(np.float32), "dark-object").spread < 0.02
+    # specks of an empty field: darker than its large-scale level
+    empty = (200.0 * shade).astype(np.float32)
+    empty[40:43, 60:63] *= 0.5
+    empty[200, 300] *= 0.7
+    g = bk.background_level(empty, "dark-object")
+    specks = bk.speck_mask(empty, g.level, "dark-object", 0.08)
+    assert bk.count_blobs(specks) == 2 and specks[41, 61] and specks[200, 300] and specks.sum() == 10
+
+
+def test_interpolated_levels_are_not_rounded_to_a_grey_level():
+    rng = np.random.default_rng(4)
+    grey = np.concatenate([rng.normal(173.3, 2.0, 200_000), rng.normal(34.6, 2.0, 50_000)])
+    grey = np.clip(np.rint(grey), 0, 255).astype(np.uint8)
+    counts = sk.histogram_u8(grey[None, :])
+    table = sk.object_signal(np.arange(256, dtype=np.float32), "dark-object")
+    level = sk.otsu_level_from_histogram(table, counts)
+    bg, fg = sk.levels_from_histogram(table, counts, level)
+    assert bg == float(round(bg)) and fg == float(round(fg))  # plain medians: grey levels
+    bgi, fgi = sk.levels_from_histogram(table, counts, level, interpolate=True)
+    assert bgi == pytest.approx(255 - 173.3, abs=0.03) and fgi == pytest.approx(255 - 34.6, abs=0.05)
