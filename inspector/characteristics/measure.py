@@ -1,0 +1,518 @@
+"""Characteristics of one inspection: definitions, their check against the reference's
+features, and their measurement from the BCPS points with a standard uncertainty.
+
+A :class:`Characteristic` is what a drawing's balloon says: ``id`` (the balloon number),
+``kind``, the feature(s) it applies to, the limits as deviations from the nominal (mm, or
+degrees for an angle), an optional nominal (default: the CAD's) and a criticality.
+
+:func:`measure` takes the BCPS points in the reference frame and their relative weights (the
+bcps stage's per-point confidence, :func:`inspector.kernels.bcps.confidence`):
+
+1. each point belongs to the feature that owns its nearest reference triangle, when it lies
+   within ``band_mm`` of it (:meth:`inspector.reference.Reference.distance` ``.closest``);
+2. each feature a characteristic needs is fitted (:mod:`inspector.kernels.fits`, the CAD
+   nominal as the start), with a robust trim (points beyond 3.5 robust standard deviations
+   of the fit are left out, twice: an edge point of the neighbouring face, a defect);
+3. the characteristic's value follows from the fit(s), its standard uncertainty ``u`` by
+   propagation of the fits' covariances, ``U = 2 u`` (k = 2). Form characteristics
+   (flatness, roundness, cylindricity) are minimum-zone widths; their ``u`` is the points'
+   residual standard deviation (the zone of N noisy points is wider than the form by a few
+   ``s``: the value is an upper bound of the form).
+
+Verdicts: ``ok`` when ``lower <= deviation <= upper``, ``nok`` otherwise, and
+``not_measurable`` with the reason -- never a value -- when the feature has too few points,
+when its fit is ill-posed (a short arc, a plane seen along one line: :attr:`Fit.problem`),
+or when ``U`` exceeds ``max_u_fraction`` of the tolerance width (the measurement cannot
+decide).
+
+Positions are in the reference frame as placed by the alignment (the part's best-fit frame):
+``position`` is the diameter of the smallest zone around the nominal axis (or centre) that
+holds the measured one, i.e. twice the largest distance between them (ISO 1101).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from inspector.errors import RecipeError
+from inspector.kernels import fits
+from inspector.kernels.features import Feature
+
+__all__ = [
+    "CRITICALITY",
+    "KINDS",
+    "Characteristic",
+    "CharacteristicResult",
+    "assign_points",
+    "measure",
+    "unit_of",
+]
+
+#: Characteristic kinds and the feature kinds each accepts (per feature position).
+KINDS: dict[str, tuple[str, ...]] = {
+    "diameter": ("cylinder", "sphere"),
+    "radius": ("cylinder", "sphere"),
+    "distance": ("plane", "cylinder", "cone", "sphere"),
+    "angle": ("plane", "cylinder", "cone"),
+    "position": ("cylinder", "cone", "sphere"),
+    "flatness": ("plane",),
+    "roundness": ("cylinder", "cone"),
+    "cylindricity": ("cylinder",),
+}
+#: How many features each kind takes.
+ARITY = {"diameter": 1, "radius": 1, "distance": 2, "angle": 2, "position": 1, "flatness": 1, "roundness": 1,
+         "cylindricity": 1}
+#: Form characteristics: nominal 0, the value is a zone width.
+FORM = ("flatness", "roundness", "cylindricity", "position")
+CRITICALITY = ("minor", "major", "critical", "key")
+#: Two planes or axes closer than this to parallel (degrees) have a distance.
+PARALLEL_DEG = 1.0
+#: Points a fit needs beyond its parameter count.
+MIN_POINTS = {"plane": 10, "cylinder": 20, "cone": 24, "sphere": 16}
+
+
+def unit_of(kind: str) -> str:
+    """``deg`` for an angle, ``mm`` for every other kind."""
+    return "deg" if kind == "angle" else "mm"
+
+
+@dataclass(frozen=True)
+class Characteristic:
+    """One characteristic of the drawing.
+
+    Attributes
+    ----------
+    id : str
+        The balloon number (unique in a recipe).
+    kind : str
+        One of :data:`KINDS`.
+    features : tuple of str
+        Feature ids (``F01`` ...), one or two (distance, angle).
+    lower, upper : float
+        Limits of the deviation from the nominal, mm (degrees for an angle); form and
+        position: limits of the value (lower usually 0).
+    nominal : float or None
+        The nominal value; None: from the CAD (0 for form and position).
+    criticality : str
+        One of :data:`CRITICALITY`.
+    description : str
+        Free text (the DFQ's K2002; default: kind and features).
+    """
+
+    id: str
+    kind: str
+    features: tuple[str, ...]
+    lower: float
+    upper: float
+    nominal: float | None = None
+    criticality: str = "major"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "features", tuple(str(f) for f in self.features))
+        where = f"characteristic {self.id!r}"
+        if not str(self.id).strip():
+            raise RecipeError("characteristic: empty id")
+        if self.kind not in KINDS:
+            raise RecipeError(f"{where}: unknown kind {self.kind!r} (expected {', '.join(KINDS)})")
+        if self.criticality not in CRITICALITY:
+            raise RecipeError(f"{where}: unknown criticality {self.criticality!r} (expected {', '.join(CRITICALITY)})")
+        n = ARITY[self.kind]
+        if len(self.features) != n:
+            raise RecipeError(f"{where}: a {self.kind} names {n} feature{'s' if n > 1 else ''}, got "
+                              f"{len(self.features) or 'none'}")
+        for name, v in (("lower", self.lower), ("upper", self.upper)) + ((("nominal", self.nominal),) if self.nominal is not None else ()):
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                raise RecipeError(f"{where}: {name} must be a finite number, got {v!r}")
+        if self.lower > self.upper:
+            raise RecipeError(f"{where}: lower {self.lower} is above upper {self.upper}")
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any], where: str = "characteristics") -> Characteristic:
+        """From a recipe's ``[[characteristics]]`` table (``feature`` or ``features``: an id or a
+        list); one-line :class:`RecipeError` naming ``where`` on a bad key."""
+        allowed = {"id", "kind", "feature", "features", "lower", "upper", "nominal", "criticality", "description"}
+        extra = sorted(set(d) - allowed)
+        if extra:
+            raise RecipeError(f"{where}: unknown key {extra[0]!r} (expected {', '.join(sorted(allowed))})")
+        for key in ("id", "kind", "lower", "upper"):
+            if key not in d:
+                raise RecipeError(f"{where}: missing key {key!r}")
+        feats = d.get("features", d.get("feature", ()))
+        if isinstance(feats, str):
+            feats = (feats,)
+        if not isinstance(feats, (list, tuple)) or not all(isinstance(f, str) for f in feats):
+            raise RecipeError(f"{where}: feature(s) must be an id or a list of ids, got {feats!r}")
+        try:
+            return cls(str(d["id"]), str(d["kind"]), tuple(feats), d["lower"], d["upper"], d.get("nominal"),
+                       str(d.get("criticality", "major")), str(d.get("description", "")))
+        except RecipeError as e:
+            raise RecipeError(f"{where}: {e}") from None
+
+    @property
+    def unit(self) -> str:
+        return unit_of(self.kind)
+
+    @property
+    def label(self) -> str:
+        """The description, or ``kind F01[-F02]``."""
+        return self.description or f"{self.kind} {'-'.join(self.features)}"
+
+    def validate(self, features: Sequence[Feature] | Mapping[str, Feature]) -> None:
+        """Raise :class:`RecipeError` (one line) unless the characteristic applies to ``features``:
+        every id exists, each feature is of a kind the characteristic accepts, two planes or axes
+        whose distance is asked are parallel, an angle is between features with directions."""
+        by_id = _by_id(features)
+        where = f"characteristic {self.id!r}"
+        got = []
+        for fid in self.features:
+            if fid not in by_id:
+                known = sorted(by_id)
+                span = f"{known[0]}..{known[-1]}" if known else "none"
+                raise RecipeError(f"{where}: feature {fid!r} does not exist in the reference (features {span}; "
+                                  "`inspector features REFERENCE` lists them)")
+            f = by_id[fid]
+            if f.kind not in KINDS[self.kind]:
+                raise RecipeError(f"{where}: a {self.kind} of a {f.kind} ({fid}) is not defined (a {self.kind} applies "
+                                  f"to: {', '.join(KINDS[self.kind])})")
+            got.append(f)
+        if self.kind == "distance":
+            a, b = got
+            if a.id == b.id:
+                raise RecipeError(f"{where}: a distance between {a.id} and itself")
+            da, db = a.direction, b.direction
+            if da is not None and db is not None:
+                ang = math.degrees(math.acos(min(1.0, abs(float(da @ db)))))
+                planes = (a.kind == "plane") + (b.kind == "plane")
+                if planes == 1:  # an axis and a plane: the axis must lie along the plane
+                    ang = abs(90.0 - ang)
+                    if ang > PARALLEL_DEG:
+                        raise RecipeError(f"{where}: a distance between the plane and the axis of {a.id} and {b.id}, "
+                                          f"which is not parallel to it ({ang:.1f} deg off)")
+                elif ang > PARALLEL_DEG:
+                    what = "planes" if planes == 2 else "axes"
+                    raise RecipeError(f"{where}: a distance between non-parallel {what} {a.id} and {b.id} "
+                                      f"({ang:.1f} deg apart; at most {PARALLEL_DEG:g})")
+        if self.kind == "angle" and got[0].id == got[1].id:
+            raise RecipeError(f"{where}: an angle between {got[0].id} and itself")
+
+    def nominal_value(self, features: Sequence[Feature] | Mapping[str, Feature]) -> float:
+        """The nominal: given, else from the CAD features (0 for form and position)."""
+        if self.nominal is not None:
+            return float(self.nominal)
+        if self.kind in FORM:
+            return 0.0
+        by_id = _by_id(features)
+        geo = [_nominal_geometry(by_id[f]) for f in self.features]
+        if self.kind == "diameter":
+            return 2.0 * float(geo[0]["radius"])
+        if self.kind == "radius":
+            return float(geo[0]["radius"])
+        if self.kind == "distance":
+            return fits.geometric_distance(geo[0], geo[1])
+        if self.kind == "angle":
+            return _angle(geo[0], geo[1])
+        raise AssertionError(self.kind)  # pragma: no cover
+
+
+@dataclass(frozen=True)
+class CharacteristicResult:
+    """One measured characteristic (``result.json`` ``characteristics``).
+
+    ``measured``, ``deviation``, ``u`` and ``U`` are None when not measurable.
+    """
+
+    id: str
+    kind: str
+    features: tuple[str, ...]
+    nominal: float
+    measured: float | None
+    deviation: float | None
+    lower: float
+    upper: float
+    u: float | None
+    U: float | None
+    points: int
+    verdict: str
+    reason: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        def num(v: float | None) -> float | None:
+            return None if v is None or not math.isfinite(v) else float(v)
+
+        return {"id": self.id, "kind": self.kind, "features": list(self.features), "nominal": float(self.nominal),
+                "measured": num(self.measured), "deviation": num(self.deviation), "lower": float(self.lower),
+                "upper": float(self.upper), "u": num(self.u), "U": num(self.U), "points": int(self.points),
+                "verdict": self.verdict, "reason": self.reason}
+
+    @classmethod
+    def from_json(cls, d: Mapping[str, Any]) -> CharacteristicResult:
+        return cls(str(d["id"]), str(d["kind"]), tuple(d["features"]), float(d["nominal"]), d.get("measured"),
+                   d.get("deviation"), float(d["lower"]), float(d["upper"]), d.get("u"), d.get("U"), int(d.get("points", 0)),
+                   str(d["verdict"]), str(d.get("reason", "")))
+
+
+def _by_id(features: Sequence[Feature] | Mapping[str, Feature]) -> Mapping[str, Feature]:
+    return features if isinstance(features, Mapping) else {f.id: f for f in features}
+
+
+def _nominal_geometry(f: Feature) -> dict[str, Any]:
+    g: dict[str, Any] = {"kind": f.kind}
+    for k, v in f.nominal.items():
+        g[k] = np.asarray(v, float) if isinstance(v, (tuple, list)) else v
+    if f.kind == "cone":
+        g["point"] = g["apex"]
+    return g
+
+
+def _angle(ga: dict[str, Any], gb: dict[str, Any]) -> float:
+    c = abs(float(fits.direction_of(ga) @ fits.direction_of(gb)))
+    ang = math.degrees(math.acos(min(1.0, c)))
+    return 90.0 - ang if (ga["kind"] == "plane") != (gb["kind"] == "plane") else ang
+
+
+# --------------------------------------------------------------------------- measurement
+
+
+def assign_points(points_ref: np.ndarray, features: Sequence[Feature], reference: Any, band_mm: float) -> np.ndarray:
+    """Index of the feature each point belongs to, -1 for none.
+
+    Parameters
+    ----------
+    points_ref : (N, 3) float
+        Reference frame, mm.
+    features : sequence of Feature
+    reference : Reference
+        Anything with ``distance.closest(points) -> (closest (N, 3), triangle (N,))``.
+    band_mm : float
+        Farthest a point may be from its nearest reference triangle, mm.
+
+    Returns
+    -------
+    (N,) int
+        Position in ``features``, or -1 (beyond the band, or on a triangle of no feature).
+    """
+    P = np.asarray(points_ref, float).reshape(-1, 3)
+    if len(P) == 0:
+        return np.zeros(0, np.int64)
+    q, tid = reference.distance.closest(P)
+    owner = np.full(len(reference.faces), -1, np.int64)
+    for k, f in enumerate(features):
+        owner[f.faces] = k
+    out = np.where(tid >= 0, owner[np.clip(tid, 0, None)], -1)
+    far = ~(np.linalg.norm(P - q, axis=1) <= band_mm)
+    out[far] = -1
+    return out
+
+
+def _robust_fit(f: Feature, P: np.ndarray, w: np.ndarray) -> tuple[fits.Fit, np.ndarray]:
+    """The feature's primitive fitted to ``P`` with the CAD nominal as start; points beyond 3.5
+    robust standard deviations are left out (twice). Returns the fit and the kept mask."""
+    keep = np.ones(len(P), bool)
+    fit = _fit_kind(f, P, w)
+    for _ in range(2):
+        if not fit.params or not np.isfinite(fit.s):
+            break
+        r = fit.residuals
+        mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        cut = max(3.5 * mad, 1e-4)
+        new = np.abs(r) <= cut
+        if new.all():
+            break
+        idx = np.flatnonzero(keep)
+        keep[idx[~new]] = False
+        fit = _fit_kind(f, P[keep], w[keep])
+    return fit, keep
+
+
+def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray) -> fits.Fit:
+    nm = f.nominal
+    m = MIN_POINTS[f.kind]
+    if f.kind == "plane":
+        fit = fits.fit_plane(P, w, min_points=m)
+        if fit.params and float(fit.params["normal"] @ np.asarray(nm["normal"])) < 0:  # outward, as the CAD's
+            p = dict(fit.params)
+            p["normal"] = -p["normal"]
+            geometry = fit._geometry
+
+            def flipped(d: np.ndarray) -> dict[str, Any]:
+                g = geometry(d)
+                return {**g, "normal": -g["normal"]}
+
+            fit = fits.Fit(fit.kind, p, -fit.residuals, fit.names, fit.cov, fit.s, fit.n, fit.u, fit.amplification,
+                           fit.problem, flipped)
+        return fit
+    if f.kind == "cylinder":
+        return fits.fit_cylinder(P, w, axis=np.asarray(nm["direction"]), point=np.asarray(nm["point"]),
+                                 radius=float(nm["radius"]), min_points=m)
+    if f.kind == "cone":
+        return fits.fit_cone(P, w, axis=np.asarray(nm["axis"]), apex=np.asarray(nm["apex"]),
+                             half_angle_deg=float(nm["half_angle_deg"]), min_points=m)
+    if f.kind == "sphere":
+        return fits.fit_sphere(P, w, min_points=m)
+    raise ValueError(f"{f.id}: cannot fit a {f.kind}")
+
+
+def measure(characteristics: Sequence[Characteristic], features: Sequence[Feature], points_ref: np.ndarray,
+            weights: np.ndarray | None, reference: Any, *, band_mm: float = 0.5, max_u_fraction: float = 0.5,
+            slice_mm: float | None = None) -> list[CharacteristicResult]:
+    """Measure characteristics from one inspection's points.
+
+    Parameters
+    ----------
+    characteristics : sequence of Characteristic
+        Validated against ``features`` (:meth:`Characteristic.validate`; raises RecipeError).
+    features : sequence of Feature
+        The reference's features (:func:`inspector.kernels.features.find_features`).
+    points_ref : (N, 3) float
+        BCPS points in the reference frame (``Reference.to_reference_frame(points, pose)``), mm.
+    weights : (N,) float or None
+        Relative weights in [0, 1] (the bcps per-point confidence); None: all 1.
+    reference : Reference
+        The reference mesh the features were found on (its closest-point query).
+    band_mm : float
+        A point farther than this from the reference belongs to no feature, mm.
+    max_u_fraction : float
+        ``U`` above this fraction of the tolerance width (``upper - lower``): not measurable.
+    slice_mm : float, optional
+        Roundness: thickness of the cross-sections along the axis (default: a fifth of the
+        feature's length, at least 0.5 mm).
+
+    Returns
+    -------
+    list of CharacteristicResult
+        In the order of ``characteristics``.
+    """
+    by_id = {f.id: f for f in features}
+    for c in characteristics:
+        c.validate(by_id)
+    P = np.asarray(points_ref, float).reshape(-1, 3)
+    w = np.ones(len(P)) if weights is None else np.asarray(weights, float).ravel()
+    if w.shape != (len(P),):
+        raise ValueError(f"weights must be ({len(P)},), got {w.shape}")
+    w = np.clip(np.nan_to_num(w, nan=0.0), 0.0, None)
+    needed = sorted({fid for c in characteristics for fid in c.features})
+    used = [by_id[fid] for fid in needed]
+    owner = assign_points(P, used, reference, band_mm)
+    fitted: dict[str, tuple[fits.Fit, np.ndarray]] = {}
+    for k, f in enumerate(used):
+        sel = (owner == k) & (w > 0)
+        Pf, wf = P[sel], w[sel]
+        fit, keep = _robust_fit(f, Pf, wf)
+        fitted[f.id] = (fit, Pf[keep])
+    out = []
+    for c in characteristics:
+        out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm))
+    return out
+
+
+def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, tuple[fits.Fit, np.ndarray]],
+         max_u_fraction: float, slice_mm: float | None) -> CharacteristicResult:
+    nominal = c.nominal_value(by_id)
+    fs = [fitted[fid][0] for fid in c.features]
+    npts = int(sum(ft.n for ft in fs))
+
+    def fail(reason: str) -> CharacteristicResult:
+        return CharacteristicResult(c.id, c.kind, c.features, nominal, None, None, c.lower, c.upper, None, None, npts,
+                                    "not_measurable", reason)
+
+    for fid, ft in zip(c.features, fs):
+        if ft.problem is not None:
+            return fail(f"{fid}: {ft.problem}")
+    try:
+        value, u = _value(c, by_id, fitted, slice_mm)
+    except _NotMeasurable as e:
+        return fail(str(e))
+    except fits.FitError as e:
+        return fail(f"{'-'.join(c.features)}: {e}")
+    if not math.isfinite(value) or not math.isfinite(u):
+        return fail(f"{'-'.join(c.features)}: the fit gives no finite value")
+    U = 2.0 * u
+    width = c.upper - c.lower
+    if width > 0 and U > max_u_fraction * width:
+        return fail(f"U = {U:.4g} {c.unit} exceeds {max_u_fraction:g} of the tolerance width {width:.4g} {c.unit}: "
+                    "the measurement cannot decide")
+    dev = value - nominal
+    verdict = "ok" if c.lower <= dev <= c.upper else "nok"
+    return CharacteristicResult(c.id, c.kind, c.features, nominal, value, dev, c.lower, c.upper, u, U, npts, verdict)
+
+
+class _NotMeasurable(Exception):
+    pass
+
+
+def _value(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, tuple[fits.Fit, np.ndarray]],
+           slice_mm: float | None) -> tuple[float, float]:
+    kind = c.kind
+    fit, pts = fitted[c.features[0]]
+    if kind in ("diameter", "radius"):
+        k = 2.0 if kind == "diameter" else 1.0
+        i = fit.names.index("radius")
+        return k * float(fit.params["radius"]), k * float(np.sqrt(fit.cov[i, i]))
+    if kind == "distance":
+        return fits.distance_between(fit, fitted[c.features[1]][0])
+    if kind == "angle":
+        return fits.angle_between(fit, fitted[c.features[1]][0])
+    if kind == "position":
+        return _position(by_id[c.features[0]], fit)
+    if kind == "flatness":
+        return fits.flatness(pts, fit), fit.s
+    if kind == "cylindricity":
+        return fits.cylindricity(pts, fit), fit.s
+    if kind == "roundness":
+        return _roundness(by_id[c.features[0]], fit, pts, slice_mm)
+    raise AssertionError(kind)  # pragma: no cover
+
+
+def _position(f: Feature, fit: fits.Fit) -> tuple[float, float]:
+    nm = _nominal_geometry(f)
+    if f.kind == "sphere":
+        c0 = nm["centre"]
+
+        def zone(g: dict[str, Any]) -> float:
+            return 2.0 * float(np.linalg.norm(np.asarray(g["centre"]) - c0))
+    else:
+        a0 = np.asarray(nm.get("direction", nm.get("axis")), float)
+        ends: tuple[np.ndarray, ...]
+        if f.kind == "cylinder":
+            half = 0.5 * float(nm["length"]) * a0
+            ends = (nm["point"] - half, nm["point"] + half)
+        else:
+            ends = (nm["apex"],)
+
+        def zone(g: dict[str, Any]) -> float:
+            p, a = np.asarray(g["point"], float), np.asarray(g.get("direction", g.get("axis")), float)
+            worst = 0.0
+            for e in ends:
+                d = e - p
+                worst = max(worst, float(np.linalg.norm(d - (d @ a) * a)))
+            return 2.0 * worst
+
+    return fits.propagate(zone, [fit])
+
+
+def _roundness(f: Feature, fit: fits.Fit, pts: np.ndarray, slice_mm: float | None) -> tuple[float, float]:
+    """The largest minimum-zone roundness over cross-sections along the fitted axis."""
+    a = np.asarray(fit.params.get("direction", fit.params.get("axis")), float)
+    p = np.asarray(fit.params["point"], float)
+    h = (pts - p) @ a
+    length = float(np.ptp(h)) if len(h) else 0.0
+    step = slice_mm if slice_mm is not None else max(0.5, length / 5.0)
+    worst = -1.0
+    edges = np.arange(h.min(), h.max() + step, step) if len(h) else np.zeros(0)
+    for lo in edges:
+        sel = (h >= lo) & (h < lo + step)
+        if sel.sum() < 12:
+            continue
+        circ = fits.fit_circle(pts[sel], normal=a, min_points=12)
+        if circ.problem is not None:
+            continue
+        worst = max(worst, fits.roundness(pts[sel], circ))
+    if worst < 0:
+        raise _NotMeasurable(f"{f.id}: no cross-section of {step:.3g} mm holds enough points around the axis for a roundness")
+    return worst, fit.s

@@ -1,0 +1,1011 @@
+"""Least-squares fits of geometric primitives with their uncertainty, and minimum-zone form.
+
+Every fit minimises ``sum_i w_i r_i^2`` of the points' orthogonal residuals ``r_i`` (mm) by
+Gauss-Newton (Levenberg-Marquardt damped) in a *local* minimal parametrisation about the
+current estimate (offsets and tilts of the primitive, its size), so each parameter is well
+scaled and free of the gauge freedoms (a plane's point sliding in the plane, an axis point
+sliding along the axis). At the solution, with ``J`` the (N, p) Jacobian of the residuals in
+that parametrisation and ``W = diag(w)``::
+
+    s^2 = sum_i w_i r_i^2 / (N - p)          cov = s^2 (J^T W J)^-1
+
+``cov`` is the covariance of the local parameters (:attr:`Fit.names`), and the standard
+uncertainty of any derived quantity (a radius, the distance between two planes, the angle
+between two axes) follows by first-order propagation ``u^2 = g^T cov g`` with ``g`` its
+gradient in those parameters (:func:`propagate`, central differences). The weights are
+relative (e.g. the bcps stage's per-point confidence): ``s^2`` absorbs their scale.
+
+A fit says when it cannot be trusted (:attr:`Fit.problem`, None when it can): too few points
+for its parameters, a singular normal matrix (points on a line for a plane, one generator of
+a cylinder), or a key parameter amplified far beyond the points' own scatter -- the radius
+of a short arc, the tilt of a plane seen along a narrow strip (:attr:`Fit.amplification`:
+the parameter's standard uncertainty over ``s / sqrt(N)``; about 1 for a full circle, a few
+for a square face, hundreds for a 10-degree arc).
+
+Minimum-zone (Chebyshev) form -- :func:`flatness`, :func:`roundness`,
+:func:`cylindricity` -- minimises the width of the zone that holds every point, as the ISO
+definitions require; the zone's parameters are linearised about the least-squares fit (the
+tilts involved are micro-radians to milli-radians, the linearisation error is below 1e-9 mm)
+and the linear programme is solved by :func:`scipy.optimize.linprog`, re-linearised until it
+settles. :func:`circle_mcc` and :func:`circle_mic` give the minimum circumscribed and
+maximum inscribed circles the same way.
+
+Units: mm and radians inside; angles in the results' ``*_deg`` names are degrees.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "Fit",
+    "FitError",
+    "MAX_AMPLIFICATION",
+    "angle_between",
+    "circle_mcc",
+    "circle_mic",
+    "cylindricity",
+    "direction_of",
+    "distance_between",
+    "geometric_distance",
+    "fit_circle",
+    "fit_cone",
+    "fit_cylinder",
+    "fit_line",
+    "fit_plane",
+    "fit_sphere",
+    "flatness",
+    "orthonormal_basis",
+    "propagate",
+    "roundness",
+]
+
+#: A key parameter whose standard uncertainty exceeds this many times ``s / sqrt(N)`` is not
+#: constrained by the points (a full circle: ~1; a half circle: ~3; a 60-degree arc: ~25;
+#: a 10-degree arc: ~1000).
+MAX_AMPLIFICATION = 30.0
+#: A normal matrix whose scaled condition number exceeds this is singular.
+MAX_CONDITION = 1e12
+#: Gauss-Newton stops when no step moves the residuals' weighted sum of squares by more than this (relative).
+_RTOL = 1e-13
+_MAX_ITER = 100
+
+
+class FitError(ValueError):
+    """The input cannot be fitted at all (wrong shapes, non-finite values, negative weights)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Fit:
+    """One least-squares fit.
+
+    Attributes
+    ----------
+    kind : str
+        ``plane``, ``line``, ``circle``, ``cylinder``, ``sphere`` or ``cone``.
+    params : dict
+        The primitive, reference frame, mm (see each ``fit_*``); vectors as (3,) arrays.
+    residuals : (N,) float
+        Signed orthogonal residuals, mm (positive outside a circle, cylinder, sphere or
+        cone; along the normal for a plane; the distance for a line).
+    names : tuple of str
+        The local parameters ``cov`` is expressed in.
+    cov : (p, p) float
+        Their covariance, mm^2 / rad^2 (``inf`` everywhere when the fit is singular).
+    s : float
+        Weighted residual standard deviation ``sqrt(sum w r^2 / (N - p))``, mm.
+    n : int
+        Points used.
+    u : dict of str to float
+        Standard uncertainties of the primitive's derived quantities (``radius``,
+        ``diameter``, ``offset``, ``tilt_rad``, ``half_angle_deg`` ...).
+    amplification : float
+        The key parameter's standard uncertainty over ``s / sqrt(N)``.
+    problem : str or None
+        Why the fit cannot be trusted; None when it can.
+    """
+
+    kind: str
+    params: dict[str, Any]
+    residuals: np.ndarray
+    names: tuple[str, ...]
+    cov: np.ndarray
+    s: float
+    n: int
+    u: dict[str, float]
+    amplification: float
+    problem: str | None
+    _geometry: Callable[[np.ndarray], dict[str, Any]] = field(repr=False)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the fit can be trusted (no :attr:`problem`)."""
+        return self.problem is None
+
+    def perturbed(self, delta: np.ndarray) -> dict[str, Any]:
+        """The primitive moved by ``delta`` (p,) in the local parameters :attr:`names`."""
+        return self._geometry(np.asarray(delta, float))
+
+    def to_json(self) -> dict[str, Any]:
+        return {"kind": self.kind, "params": {k: _plain(v) for k, v in self.params.items()}, "s": self.s,
+                "n": self.n, "u": dict(self.u), "amplification": self.amplification, "problem": self.problem}
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, np.ndarray):
+        return [float(x) for x in v.ravel()]
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def orthonormal_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors (3,), (3,) that make a right-handed orthonormal frame with unit ``a`` (3,)."""
+    a = np.asarray(a, float)
+    helper = np.eye(3)[int(np.argmin(np.abs(a)))]
+    u = np.cross(a, helper)
+    u /= np.linalg.norm(u)
+    v = np.cross(a, u)
+    return u, v
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+def _check(points: Any, weights: Any, dim: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    P = np.asarray(points, float)
+    if P.ndim != 2 or P.shape[1] != dim:
+        raise FitError(f"points must be (N, {dim}), got {P.shape}")
+    if not np.isfinite(P).all():
+        raise FitError("points hold non-finite values")
+    if weights is None:
+        w = np.ones(len(P))
+    else:
+        w = np.asarray(weights, float).ravel()
+        if w.shape != (len(P),):
+            raise FitError(f"weights must be ({len(P)},), got {w.shape}")
+        if not np.isfinite(w).all() or (w < 0).any():
+            raise FitError("weights must be finite and >= 0")
+    keep = w > 0
+    return P[keep], w[keep]
+
+
+def _covariance(J: np.ndarray, r: np.ndarray, w: np.ndarray, p: int) -> tuple[np.ndarray, float, float]:
+    """``cov = s^2 (J^T W J)^-1``, ``s`` and the scaled condition number of ``J^T W J``."""
+    n = len(r)
+    A = J.T @ (J * w[:, None])
+    dof = n - p
+    s2 = float(np.sum(w * r * r) / dof) if dof > 0 else float("nan")
+    d = np.sqrt(np.clip(np.diag(A), 1e-300, None))
+    As = A / np.outer(d, d)  # scaled: the condition number does not depend on the units
+    ev = np.linalg.eigvalsh(As)
+    cond = float(ev[-1] / ev[0]) if ev[0] > 0 else float("inf")
+    if not np.isfinite(cond) or cond > MAX_CONDITION or dof <= 0:
+        return np.full((p, p), np.inf), float(np.sqrt(s2)) if dof > 0 else float("nan"), cond
+    cov = s2 * (np.linalg.inv(As) / np.outer(d, d))
+    return 0.5 * (cov + cov.T), float(np.sqrt(s2)), cond
+
+
+def _gauss_newton(residual: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                  recentre: Callable[[np.ndarray], None], w: np.ndarray, p: int) -> None:
+    """Levenberg-Marquardt on local parameters: ``residual(delta) -> (r, J)`` at the state moved
+    by ``delta``; ``recentre(delta)`` makes that the new state (delta 0)."""
+    lam = 1e-6
+    r, J = residual(np.zeros(p))
+    cost = float(np.sum(w * r * r))
+    for _ in range(_MAX_ITER):
+        A = J.T @ (J * w[:, None])
+        g = J.T @ (w * r)
+        D = np.diag(np.diag(A)) + 1e-12 * np.eye(p) * max(1.0, float(np.trace(A)) / p)
+        improved = False
+        for _ in range(30):
+            try:
+                step = -np.linalg.solve(A + lam * D, g)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            r2, J2 = residual(step)
+            cost2 = float(np.sum(w * r2 * r2))
+            if np.isfinite(cost2) and cost2 <= cost:
+                recentre(step)
+                r, J = residual(np.zeros(p))
+                done = cost - cost2 <= _RTOL * max(cost, 1e-300) or cost2 == 0.0
+                cost = float(np.sum(w * r * r))
+                lam = max(lam / 10.0, 1e-12)
+                improved = True
+                break
+            lam *= 10.0
+        if not improved or done:
+            return
+
+
+def _finish(kind: str, params: dict[str, Any], r: np.ndarray, J: np.ndarray, w: np.ndarray,
+            names: tuple[str, ...], geometry: Callable[[np.ndarray], dict[str, Any]],
+            key: int | None, key_name: str, min_points: int, max_amplification: float,
+            extra_u: Callable[[np.ndarray], dict[str, float]]) -> Fit:
+    p = len(names)
+    n = len(r)
+    cov, s, cond = _covariance(J, r, w, p)
+    problem = None
+    if n < min_points:
+        problem = f"too few points ({n} < {min_points})"
+    elif not np.isfinite(cov).all():
+        problem = f"the points do not constrain the {kind} (singular, condition {cond:.3g})"
+    u = extra_u(cov) if np.isfinite(cov).all() else {}
+    amp = float("nan")
+    if key is not None and np.isfinite(cov).all():
+        floor = max(s, 1e-9) / np.sqrt(max(n, 1))
+        amp = float(np.sqrt(max(cov[key, key], 0.0)) / floor)
+        if problem is None and amp > max_amplification:
+            problem = (f"the points do not constrain the {kind}'s {key_name} (its uncertainty is {amp:.0f}x the "
+                       f"points' scatter over sqrt(N); at most {max_amplification:g})")
+    return Fit(kind, params, r, names, cov, s, n, u, amp, problem, geometry)
+
+
+# --------------------------------------------------------------------------- plane
+
+
+def fit_plane(points: np.ndarray, weights: np.ndarray | None = None, *, min_points: int = 6,
+              max_amplification: float = 100.0) -> Fit:
+    """Least-squares plane.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        mm.
+    weights : (N,) float, optional
+        Relative weights >= 0 (zero: point ignored).
+    min_points : int
+        Fewer points: :attr:`Fit.problem` says so.
+    max_amplification : float
+        Bound on the tilt's amplification: its uncertainty times the points' largest
+        in-plane extent, over ``s / sqrt(N)`` (a square face ~5, a 10:1 strip ~40, points
+        on one line: singular or thousands).
+
+    Returns
+    -------
+    Fit
+        ``params``: ``point`` (3,) the weighted centroid, ``normal`` (3,) unit (sign: the
+        largest component positive unless the caller flips it). Local parameters
+        ``offset`` (mm, along the normal) and ``tilt_u``, ``tilt_v`` (rad, towards the
+        in-plane axes ``params['u']``, ``params['v']``: the points' principal directions).
+        ``u``: ``offset``, ``tilt_rad`` (the larger tilt uncertainty).
+    """
+    P, w = _check(points, weights)
+    if len(P) < 3:
+        return _degenerate("plane", len(P), min_points)
+    c = (w[:, None] * P).sum(0) / w.sum()
+    d = P - c
+    M = (d * w[:, None]).T @ d
+    ev, vec = np.linalg.eigh(M)
+    nrm = vec[:, 0]
+    nrm = nrm * (1.0 if nrm[np.argmax(np.abs(nrm))] > 0 else -1.0)
+    eu, ev_ = vec[:, 2], np.cross(nrm, vec[:, 2])
+    r = d @ nrm
+    J = np.column_stack([-np.ones(len(P)), d @ eu, d @ ev_])
+
+    def geometry(delta: np.ndarray, c=c, nrm=nrm, eu=eu, ev_=ev_) -> dict[str, Any]:
+        n2 = _unit(nrm + delta[1] * eu + delta[2] * ev_)
+        return {"kind": "plane", "point": c + delta[0] * nrm, "normal": n2}
+
+    def extra(cov: np.ndarray) -> dict[str, float]:
+        return {"offset": float(np.sqrt(cov[0, 0])), "tilt_rad": float(np.sqrt(np.linalg.eigvalsh(cov[1:, 1:])[-1]))}
+
+    fit = _finish("plane", {"point": c, "normal": nrm, "u": eu, "v": ev_}, r, J, w, ("offset", "tilt_u", "tilt_v"),
+                  geometry, None, "tilt", min_points, max_amplification, extra)
+    if fit.problem is None and np.isfinite(fit.cov).all():
+        extent = float(np.ptp(d @ eu)) if len(d) else 0.0
+        tilt = float(np.sqrt(np.linalg.eigvalsh(fit.cov[1:, 1:])[-1]))
+        amp = tilt * extent / (max(fit.s, 1e-9) / np.sqrt(len(P)))
+        problem = None
+        if amp > max_amplification:
+            problem = (f"the points do not constrain the plane's tilt (a strip or a line: its uncertainty is {amp:.0f}x "
+                       f"the points' scatter over sqrt(N) and their extent; at most {max_amplification:g})")
+        fit = Fit(fit.kind, fit.params, fit.residuals, fit.names, fit.cov, fit.s, fit.n, fit.u, amp, problem, geometry)
+    return fit
+
+
+def _degenerate(kind: str, n: int, min_points: int) -> Fit:
+    return Fit(kind, {}, np.zeros(n), (), np.zeros((0, 0)), float("nan"), n, {}, float("nan"),
+               f"too few points ({n} < {min_points})", lambda d: {})
+
+
+# --------------------------------------------------------------------------- line
+
+
+def fit_line(points: np.ndarray, weights: np.ndarray | None = None, *, min_points: int = 4) -> Fit:
+    """Least-squares 3D line (orthogonal distance regression).
+
+    Returns
+    -------
+    Fit
+        ``params``: ``point`` (3,) the weighted centroid, ``direction`` (3,) unit. Local
+        parameters ``shift_u``, ``shift_v`` (mm), ``tilt_u``, ``tilt_v`` (rad); the residual
+        of each point is its two perpendicular components (``residuals`` holds their norm).
+        ``u``: ``position`` (the larger shift), ``tilt_rad``.
+    """
+    P, w = _check(points, weights)
+    if len(P) < 2:
+        return _degenerate("line", len(P), min_points)
+    c = (w[:, None] * P).sum(0) / w.sum()
+    d = P - c
+    _, vec = np.linalg.eigh((d * w[:, None]).T @ d)
+    a = vec[:, 2] * (1.0 if vec[np.argmax(np.abs(vec[:, 2])), 2] > 0 else -1.0)
+    eu, ev_ = orthonormal_basis(a)
+    h = d @ a
+    ru, rv = d @ eu, d @ ev_
+    n = len(P)
+    J = np.zeros((2 * n, 4))
+    J[:n, 0] = -1.0
+    J[:n, 2] = -h
+    J[n:, 1] = -1.0
+    J[n:, 3] = -h
+    r2 = np.concatenate([ru, rv])
+    w2 = np.concatenate([w, w])
+
+    def geometry(delta: np.ndarray, c=c, a=a, eu=eu, ev_=ev_) -> dict[str, Any]:
+        return {"kind": "line", "point": c + delta[0] * eu + delta[1] * ev_, "direction": _unit(a + delta[2] * eu + delta[3] * ev_)}
+
+    def extra(cov: np.ndarray) -> dict[str, float]:
+        return {"position": float(np.sqrt(max(cov[0, 0], cov[1, 1]))), "tilt_rad": float(np.sqrt(max(cov[2, 2], cov[3, 3])))}
+
+    fit = _finish("line", {"point": c, "direction": a}, r2, J, w2, ("shift_u", "shift_v", "tilt_u", "tilt_v"), geometry,
+                  None, "direction", 2 * min_points, np.inf, extra)
+    problem = f"too few points ({n} < {min_points})" if n < min_points else fit.problem
+    return Fit("line", fit.params, np.hypot(ru, rv), fit.names, fit.cov, fit.s, n, fit.u, fit.amplification, problem, geometry)
+
+
+# --------------------------------------------------------------------------- circle
+
+
+def _kasa(q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
+    """Algebraic circle fit (Kasa) of (N, 2) points: centre (2,), radius."""
+    A = np.column_stack([2.0 * q, np.ones(len(q))])
+    b = (q * q).sum(1)
+    sw = np.sqrt(w)
+    sol, *_ = np.linalg.lstsq(A * sw[:, None], b * sw, rcond=None)
+    ctr = sol[:2]
+    return ctr, float(np.sqrt(max(sol[2] + ctr @ ctr, 1e-300)))
+
+
+def fit_circle(points: np.ndarray, weights: np.ndarray | None = None, *, normal: np.ndarray | None = None,
+               min_points: int = 6, max_amplification: float = MAX_AMPLIFICATION) -> Fit:
+    """Least-squares circle in a plane.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        mm; projected onto the plane first.
+    normal : (3,) float, optional
+        The plane's normal (e.g. the cylinder's axis); default: the points' best-fit plane.
+
+    Returns
+    -------
+    Fit
+        ``params``: ``centre`` (3,), ``normal`` (3,), ``radius``. Local parameters
+        ``centre_u``, ``centre_v`` (mm, in-plane), ``radius``. ``u``: ``radius``,
+        ``diameter``, ``centre`` (the larger in-plane one).
+    """
+    P, w = _check(points, weights)
+    if len(P) < 3:
+        return _degenerate("circle", len(P), min_points)
+    c0 = (w[:, None] * P).sum(0) / w.sum()
+    if normal is None:
+        _, vec = np.linalg.eigh(((P - c0) * w[:, None]).T @ (P - c0))
+        nrm = vec[:, 0]
+    else:
+        nrm = _unit(np.asarray(normal, float))
+    eu, ev_ = orthonormal_basis(nrm)
+    q = np.column_stack([(P - c0) @ eu, (P - c0) @ ev_])
+    ctr, R = _kasa(q, w)
+    state: dict[str, Any] = {"c": ctr.copy(), "R": R}
+
+    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        dq = q - (state["c"] + delta[:2])
+        rho = np.hypot(dq[:, 0], dq[:, 1])
+        e = dq / np.maximum(rho, 1e-300)[:, None]
+        return rho - (state["R"] + delta[2]), np.column_stack([-e, -np.ones(len(q))])
+
+    def recentre(delta: np.ndarray) -> None:
+        state["c"] = state["c"] + delta[:2]
+        state["R"] = state["R"] + delta[2]
+
+    _gauss_newton(residual, recentre, w, 3)
+    r, J = residual(np.zeros(3))
+    centre = c0 + state["c"][0] * eu + state["c"][1] * ev_
+    R = float(state["R"])
+
+    def geometry(delta: np.ndarray, centre=centre, R=R) -> dict[str, Any]:
+        return {"kind": "circle", "centre": centre + delta[0] * eu + delta[1] * ev_, "normal": nrm, "radius": R + delta[2]}
+
+    def extra(cov: np.ndarray) -> dict[str, float]:
+        return {"radius": float(np.sqrt(cov[2, 2])), "diameter": float(2.0 * np.sqrt(cov[2, 2])),
+                "centre": float(np.sqrt(max(cov[0, 0], cov[1, 1])))}
+
+    fit = _finish("circle", {"centre": centre, "normal": nrm, "radius": R}, r, J, w, ("centre_u", "centre_v", "radius"),
+                  geometry, 2, "radius", min_points, max_amplification, extra)
+    return fit
+
+
+# --------------------------------------------------------------------------- sphere
+
+
+def fit_sphere(points: np.ndarray, weights: np.ndarray | None = None, *, min_points: int = 8,
+               max_amplification: float = MAX_AMPLIFICATION) -> Fit:
+    """Least-squares sphere.
+
+    Returns
+    -------
+    Fit
+        ``params``: ``centre`` (3,), ``radius``. Local parameters ``cx``, ``cy``, ``cz``,
+        ``radius`` (mm). ``u``: ``radius``, ``diameter``, ``centre`` (the largest axis).
+    """
+    P, w = _check(points, weights)
+    if len(P) < 4:
+        return _degenerate("sphere", len(P), min_points)
+    A = np.column_stack([2.0 * P, np.ones(len(P))])
+    sw = np.sqrt(w)
+    sol, *_ = np.linalg.lstsq(A * sw[:, None], (P * P).sum(1) * sw, rcond=None)
+    state: dict[str, Any] = {"c": sol[:3].copy(), "R": float(np.sqrt(max(sol[3] + sol[:3] @ sol[:3], 1e-300)))}
+
+    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = P - (state["c"] + delta[:3])
+        rho = np.linalg.norm(d, axis=1)
+        e = d / np.maximum(rho, 1e-300)[:, None]
+        return rho - (state["R"] + delta[3]), np.column_stack([-e, -np.ones(len(P))])
+
+    def recentre(delta: np.ndarray) -> None:
+        state["c"] = state["c"] + delta[:3]
+        state["R"] = state["R"] + delta[3]
+
+    _gauss_newton(residual, recentre, w, 4)
+    r, J = residual(np.zeros(4))
+    centre, R = state["c"].copy(), float(state["R"])
+
+    def geometry(delta: np.ndarray, centre=centre, R=R) -> dict[str, Any]:
+        return {"kind": "sphere", "centre": centre + delta[:3], "radius": R + delta[3]}
+
+    def extra(cov: np.ndarray) -> dict[str, float]:
+        return {"radius": float(np.sqrt(cov[3, 3])), "diameter": float(2.0 * np.sqrt(cov[3, 3])),
+                "centre": float(np.sqrt(np.linalg.eigvalsh(cov[:3, :3])[-1]))}
+
+    return _finish("sphere", {"centre": centre, "radius": R}, r, J, w, ("cx", "cy", "cz", "radius"), geometry, 3,
+                   "radius", min_points, max_amplification, extra)
+
+
+# --------------------------------------------------------------------------- cylinder
+
+
+def _axis_candidates(P: np.ndarray, w: np.ndarray) -> list[np.ndarray]:
+    c = (w[:, None] * P).sum(0) / w.sum()
+    _, vec = np.linalg.eigh(((P - c) * w[:, None]).T @ (P - c))
+    return [vec[:, k] for k in (2, 0, 1)]
+
+
+def fit_cylinder(points: np.ndarray, weights: np.ndarray | None = None, *, axis: np.ndarray | None = None,
+                 point: np.ndarray | None = None, radius: float | None = None, min_points: int = 10,
+                 max_amplification: float = MAX_AMPLIFICATION) -> Fit:
+    """Least-squares cylinder.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        mm.
+    axis, point, radius : optional
+        A starting estimate (e.g. the CAD nominal): unit direction (3,), a point on the axis
+        (3,), mm. Without ``axis``, the points' three principal directions are tried and the
+        best fit kept.
+
+    Returns
+    -------
+    Fit
+        ``params``: ``point`` (3,) on the axis at the points' weighted mean position along
+        it, ``direction`` (3,) unit, ``radius``. Local parameters ``shift_u``, ``shift_v``
+        (mm), ``tilt_u``, ``tilt_v`` (rad), ``radius`` (mm). ``u``: ``radius``, ``diameter``,
+        ``position`` (the axis point, larger in-plane), ``tilt_rad``.
+    """
+    P, w = _check(points, weights)
+    if len(P) < 5:
+        return _degenerate("cylinder", len(P), min_points)
+    starts = [_unit(np.asarray(axis, float))] if axis is not None else _axis_candidates(P, w)
+    best: Fit | None = None
+    for a0 in starts:
+        fit = _fit_cylinder_from(P, w, a0, point, radius, min_points, max_amplification)
+        if best is None or float(np.sum(w * fit.residuals ** 2)) < float(np.sum(w * best.residuals ** 2)) - 1e-12:
+            best = fit
+    assert best is not None
+    return best
+
+
+def _fit_cylinder_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, p0: np.ndarray | None, R0: float | None,
+                       min_points: int, max_amplification: float) -> Fit:
+    cw = (w[:, None] * P).sum(0) / w.sum()
+    eu, ev_ = orthonormal_basis(a0)
+    if p0 is None or R0 is None:
+        q = np.column_stack([(P - cw) @ eu, (P - cw) @ ev_])
+        ctr, Rk = _kasa(q, w)
+        p_init = cw + ctr[0] * eu + ctr[1] * ev_
+        R_init = Rk if R0 is None else float(R0)
+        if p0 is not None:
+            p_init = np.asarray(p0, float)
+    else:
+        p_init, R_init = np.asarray(p0, float), float(R0)
+    state: dict[str, Any] = {"p": p_init.copy(), "a": a0.copy(), "R": float(R_init)}
+
+    def centre_state() -> None:  # the axis point at the points' weighted mean along the axis
+        a = state["a"]
+        state["p"] = state["p"] + ((cw - state["p"]) @ a) * a
+
+    centre_state()
+
+    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = state["a"]
+        bu, bv = orthonormal_basis(a)
+        p = state["p"] + delta[0] * bu + delta[1] * bv
+        a2 = _unit(a + delta[2] * bu + delta[3] * bv)
+        d = P - p
+        h = d @ a2
+        rad = d - h[:, None] * a2
+        rho = np.linalg.norm(rad, axis=1)
+        e = rad / np.maximum(rho, 1e-300)[:, None]
+        eu_, ev2 = e @ bu, e @ bv
+        J = np.column_stack([-eu_, -ev2, -h * eu_, -h * ev2, -np.ones(len(P))])
+        return rho - (state["R"] + delta[4]), J
+
+    def recentre(delta: np.ndarray) -> None:
+        a = state["a"]
+        bu, bv = orthonormal_basis(a)
+        state["p"] = state["p"] + delta[0] * bu + delta[1] * bv
+        state["a"] = _unit(a + delta[2] * bu + delta[3] * bv)
+        state["R"] = state["R"] + delta[4]
+        centre_state()
+
+    _gauss_newton(residual, recentre, w, 5)
+    r, J = residual(np.zeros(5))
+    a = state["a"] * (1.0 if state["a"][np.argmax(np.abs(state["a"]))] > 0 else -1.0)
+    state["a"] = a
+    r, J = residual(np.zeros(5))
+    p, R = state["p"].copy(), float(state["R"])
+    bu, bv = orthonormal_basis(a)
+
+    def geometry(delta: np.ndarray, p=p, a=a, R=R, bu=bu, bv=bv) -> dict[str, Any]:
+        return {"kind": "cylinder", "point": p + delta[0] * bu + delta[1] * bv,
+                "direction": _unit(a + delta[2] * bu + delta[3] * bv), "radius": R + delta[4]}
+
+    def extra(cov: np.ndarray) -> dict[str, float]:
+        return {"radius": float(np.sqrt(cov[4, 4])), "diameter": float(2.0 * np.sqrt(cov[4, 4])),
+                "position": float(np.sqrt(max(cov[0, 0], cov[1, 1]))), "tilt_rad": float(np.sqrt(max(cov[2, 2], cov[3, 3])))}
+
+    h = (P - p) @ a
+    return _finish("cylinder", {"point": p, "direction": a, "radius": R, "length": float(np.ptp(h))}, r, J, w,
+                   ("shift_u", "shift_v", "tilt_u", "tilt_v", "radius"), geometry, 4, "radius", min_points,
+                   max_amplification, extra)
+
+
+# --------------------------------------------------------------------------- cone
+
+
+def fit_cone(points: np.ndarray, weights: np.ndarray | None = None, *, axis: np.ndarray | None = None,
+             apex: np.ndarray | None = None, half_angle_deg: float | None = None, min_points: int = 12,
+             max_amplification: float = MAX_AMPLIFICATION) -> Fit:
+    """Least-squares cone (a right circular cone: axis, apex, half-angle).
+
+    Parameters
+    ----------
+    axis : (3,) float, optional
+        Starting direction, unit, pointing from the apex into the cone (radius growing).
+        Without it, the points' principal directions are tried.
+    apex, half_angle_deg : optional
+        Starting apex (3,) mm and half-angle (degrees).
+
+    Returns
+    -------
+    Fit
+        ``params``: ``apex`` (3,), ``axis`` (3,) unit (radius grows along it),
+        ``half_angle_deg``, and ``point`` (3,) on the axis at the points' mean position along
+        it with ``radius`` there (mm). Residuals are the orthogonal distances to the cone's
+        surface. Local parameters ``shift_u``, ``shift_v`` (mm, of ``point``), ``tilt_u``,
+        ``tilt_v`` (rad), ``radius`` (mm, at ``point``), ``half_angle`` (rad). ``u``:
+        ``half_angle_deg``, ``radius``, ``tilt_rad``, ``apex`` (along the axis, mm).
+    """
+    P, w = _check(points, weights)
+    if len(P) < 6:
+        return _degenerate("cone", len(P), min_points)
+    cw = (w[:, None] * P).sum(0) / w.sum()
+    starts: list[tuple[np.ndarray, np.ndarray, float, float]] = []
+    if axis is not None:
+        a0 = _unit(np.asarray(axis, float))
+        if apex is not None and half_angle_deg is not None:
+            alpha = np.radians(half_angle_deg)
+            ap = np.asarray(apex, float)
+            p0 = ap + ((cw - ap) @ a0) * a0
+            starts.append((p0, a0, float(np.linalg.norm(p0 - ap) * np.tan(alpha)), float(alpha)))
+        else:
+            starts += _cone_starts(P, w, cw, [a0])
+    else:
+        starts += _cone_starts(P, w, cw, _axis_candidates(P, w))
+    best: Fit | None = None
+    for p0, a0, r0, al0 in starts:
+        fit = _fit_cone_from(P, w, cw, p0, a0, r0, al0, min_points, max_amplification)
+        if fit.params and (best is None or np.sum(w * fit.residuals ** 2) < np.sum(w * best.residuals ** 2) - 1e-12):
+            best = fit
+    if best is None:
+        return _degenerate("cone", len(P), min_points)
+    return best
+
+
+def _cone_starts(P: np.ndarray, w: np.ndarray, cw: np.ndarray, axes: Sequence[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
+    """Algebraic starts: in the plane across ``a``, ``|q - c|^2 = (r0 + k h)^2`` is linear in
+    (2c, r0^2 - c.c, 2 r0 k, k^2) with regressors (q, 1, h, h^2)."""
+    out = []
+    for a in axes:
+        eu, ev_ = orthonormal_basis(a)
+        d = P - cw
+        q = np.column_stack([d @ eu, d @ ev_])
+        h = d @ a
+        A = np.column_stack([2.0 * q, np.ones(len(P)), h, h * h])
+        sw = np.sqrt(w)
+        sol, *_ = np.linalg.lstsq(A * sw[:, None], (q * q).sum(1) * sw, rcond=None)
+        c = sol[:2]
+        r0 = float(np.sqrt(max(sol[2] + c @ c, 1e-12)))
+        k = sol[3] / (2.0 * r0)
+        sgn = 1.0 if k >= 0 else -1.0
+        out.append((cw + c[0] * eu + c[1] * ev_, sgn * a, r0, float(np.arctan(abs(k)))))
+    return out
+
+
+def _fit_cone_from(P: np.ndarray, w: np.ndarray, cw: np.ndarray, p0: np.ndarray, a0: np.ndarray, r0: float, al0: float,
+                   min_points: int, max_amplification: float) -> Fit:
+    state: dict[str, Any] = {"p": np.asarray(p0, float).copy(), "a": _unit(np.asarray(a0, float)), "r": float(r0), "al": float(al0)}
+
+    def centre_state() -> None:
+        a = state["a"]
+        t = (cw - state["p"]) @ a
+        state["p"] = state["p"] + t * a
+        state["r"] = state["r"] + t * np.tan(state["al"])
+
+    centre_state()
+
+    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = state["a"]
+        bu, bv = orthonormal_basis(a)
+        p = state["p"] + delta[0] * bu + delta[1] * bv
+        a2 = _unit(a + delta[2] * bu + delta[3] * bv)
+        r0_ = state["r"] + delta[4]
+        al = state["al"] + delta[5]
+        d = P - p
+        h = d @ a2
+        rad = d - h[:, None] * a2
+        rho = np.linalg.norm(rad, axis=1)
+        e = rad / np.maximum(rho, 1e-300)[:, None]
+        ca, ta = np.cos(al), np.tan(al)
+        g = rho - r0_ - h * ta
+        eu_, ev2 = e @ bu, e @ bv
+        du, dv = d @ bu, d @ bv
+        J = np.column_stack([-eu_ * ca, -ev2 * ca, (-h * eu_ - ta * du) * ca, (-h * ev2 - ta * dv) * ca,
+                             -np.full(len(P), ca), -h / ca - g * np.sin(al)])
+        return g * ca, J
+
+    def recentre(delta: np.ndarray) -> None:
+        a = state["a"]
+        bu, bv = orthonormal_basis(a)
+        state["p"] = state["p"] + delta[0] * bu + delta[1] * bv
+        state["a"] = _unit(a + delta[2] * bu + delta[3] * bv)
+        state["r"] = state["r"] + delta[4]
+        state["al"] = state["al"] + delta[5]
+        centre_state()
+
+    _gauss_newton(residual, recentre, w, 6)
+    if state["al"] < 0:  # the same cone with the axis reversed
+        state["a"], state["al"] = -state["a"], -state["al"]
+    r, J = residual(np.zeros(6))
+    p, a, rr, al = state["p"].copy(), state["a"].copy(), float(state["r"]), float(state["al"])
+    if not (0.0 < al < np.pi / 2) or rr <= 0:
+        return _degenerate("cone", len(P), min_points)
+    bu, bv = orthonormal_basis(a)
+
+    def geometry(delta: np.ndarray, p=p, a=a, rr=rr, al=al, bu=bu, bv=bv) -> dict[str, Any]:
+        p2 = p + delta[0] * bu + delta[1] * bv
+        a2 = _unit(a + delta[2] * bu + delta[3] * bv)
+        r2, al2 = rr + delta[4], al + delta[5]
+        return {"kind": "cone", "point": p2, "axis": a2, "radius": r2, "half_angle_deg": float(np.degrees(al2)),
+                "apex": p2 - (r2 / np.tan(al2)) * a2}
+
+    def extra(cov: np.ndarray) -> dict[str, float]:
+        g = np.zeros(6)
+        g[4], g[5] = -1.0 / np.tan(al), rr / np.sin(al) ** 2  # apex position along the axis
+        return {"half_angle_deg": float(np.degrees(np.sqrt(cov[5, 5]))), "radius": float(np.sqrt(cov[4, 4])),
+                "tilt_rad": float(np.sqrt(max(cov[2, 2], cov[3, 3]))), "apex": float(np.sqrt(max(g @ cov @ g, 0.0)))}
+
+    params = {"apex": p - (rr / np.tan(al)) * a, "axis": a, "half_angle_deg": float(np.degrees(al)), "point": p, "radius": rr}
+    return _finish("cone", params, r, J, w, ("shift_u", "shift_v", "tilt_u", "tilt_v", "radius", "half_angle"), geometry,
+                   5, "half-angle", min_points, max_amplification, extra)
+
+
+# --------------------------------------------------------------------------- derived quantities
+
+
+def propagate(f: Callable[..., float], fits: Sequence[Fit], *, rel_step: float = 1e-3) -> tuple[float, float]:
+    """A derived quantity of one or more independent fits and its standard uncertainty.
+
+    Parameters
+    ----------
+    f : callable
+        ``f(*geometries) -> float`` of the fits' primitives (the ``perturbed`` dicts).
+    fits : sequence of Fit
+        With finite covariances (independent of each other: different points).
+
+    Returns
+    -------
+    value, u : float
+        ``f`` at the fits and ``sqrt(sum_k g_k^T cov_k g_k)`` with ``g_k`` its gradient in fit
+        ``k``'s local parameters (central differences, steps ``rel_step`` standard deviations).
+    """
+    zeros = [np.zeros(len(ft.names)) for ft in fits]
+    base = [ft.perturbed(z) for ft, z in zip(fits, zeros)]
+    value = float(f(*base))
+    var = 0.0
+    for k, ft in enumerate(fits):
+        if not np.isfinite(ft.cov).all():
+            return value, float("inf")
+        p = len(ft.names)
+        g = np.zeros(p)
+        sd = np.sqrt(np.clip(np.diag(ft.cov), 0.0, None))
+        for j in range(p):
+            hstep = rel_step * sd[j] if sd[j] > 0 else 1e-9
+            vals = []
+            for sgn in (1.0, -1.0):
+                d = np.zeros(p)
+                d[j] = sgn * hstep
+                geo = list(base)
+                geo[k] = ft.perturbed(d)
+                vals.append(float(f(*geo)))
+            g[j] = (vals[0] - vals[1]) / (2.0 * hstep)
+        var += float(g @ ft.cov @ g)
+    return value, float(np.sqrt(max(var, 0.0)))
+
+
+def direction_of(geo: dict[str, Any]) -> np.ndarray:
+    """The plane's normal or the axis direction (3,) of a primitive (a ``perturbed`` dict)."""
+    for key in ("normal", "direction", "axis"):
+        if key in geo:
+            return np.asarray(geo[key], float)
+    raise FitError(f"a {geo.get('kind')} has no direction")
+
+
+def _is_plane(geo: dict[str, Any]) -> bool:
+    return geo.get("kind") == "plane"
+
+
+def angle_between(a: Fit, b: Fit) -> tuple[float, float]:
+    """Angle between two planes, axes or a plane and an axis, degrees, and its standard uncertainty.
+
+    Plane/plane and axis/axis: the angle between their normals or directions folded to
+    [0, 90] (a plane's normal sign is arbitrary); plane/axis: the angle between the axis and
+    the plane (90 when the axis is along the normal).
+    """
+    def f(ga: dict[str, Any], gb: dict[str, Any]) -> float:
+        c = abs(float(direction_of(ga) @ direction_of(gb)))
+        ang = float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+        return 90.0 - ang if _is_plane(ga) != _is_plane(gb) else ang
+
+    return propagate(f, [a, b])
+
+
+def _point_of(geo: dict[str, Any]) -> np.ndarray:
+    for key in ("centre", "point", "apex"):
+        if key in geo:
+            return np.asarray(geo[key], float)
+    raise FitError(f"a {geo.get('kind')} has no position")
+
+
+def geometric_distance(ga: dict[str, Any], gb: dict[str, Any]) -> float:
+    """The distance between two primitives (``perturbed`` dicts), mm: see :func:`distance_between`."""
+    ka, kb = ga["kind"], gb["kind"]
+    if ka == "plane" and kb == "plane":
+        # Parallel planes: along the mean normal, between the planes' heights at the midpoint
+        # of their points' centroids (thickness or step height).
+        na, nb = direction_of(ga), direction_of(gb)
+        if na @ nb < 0:
+            nb = -nb
+        nbar = _unit(na + nb)
+        m = 0.5 * (ga["point"] + gb["point"])
+        sa = ((ga["point"] - m) @ na) / (nbar @ na)
+        sb = ((gb["point"] - m) @ nb) / (nbar @ nb)
+        return abs(sb - sa)
+    if kb == "plane" and ka != "plane":
+        ga, gb, ka, kb = gb, ga, kb, ka
+    if ka == "plane":
+        # an axis (parallel to the plane) or a centre, to the plane
+        return abs(float((_point_of(gb) - ga["point"]) @ direction_of(ga)))
+    axial = ("line", "cylinder", "cone")
+    if ka in axial and kb in axial:
+        # Two (near-)parallel axes: distance between them at the midpoint of their points.
+        pa, pb = _point_of(ga), _point_of(gb)
+        da, db = direction_of(ga), direction_of(gb)
+        if da @ db < 0:
+            db = -db
+        dbar = _unit(da + db)
+        m = 0.5 * (pa + pb)
+        qa = pa + ((m - pa) @ dbar) / (da @ dbar) * da
+        qb = pb + ((m - pb) @ dbar) / (db @ dbar) * db
+        d = qb - qa
+        return float(np.linalg.norm(d - (d @ dbar) * dbar))
+    if ka in axial or kb in axial:
+        ax, pt = (ga, gb) if ka in axial else (gb, ga)
+        d = _point_of(pt) - _point_of(ax)
+        a = direction_of(ax)
+        return float(np.linalg.norm(d - (d @ a) * a))
+    return float(np.linalg.norm(_point_of(ga) - _point_of(gb)))
+
+
+def distance_between(a: Fit, b: Fit) -> tuple[float, float]:
+    """Distance between two fitted features, mm, and its standard uncertainty.
+
+    Plane/plane (parallel: a thickness or a step): along their mean normal, at the midpoint
+    of the two planes' points; plane/axis or plane/centre: from the axis point or centre to
+    the plane; axis/axis (parallel): between the axes at the midpoint of their points;
+    axis/centre: from the centre to the axis; centre/centre: between the centres.
+    """
+    return propagate(geometric_distance, [a, b])
+
+
+# --------------------------------------------------------------------------- minimum zone
+
+
+def _lp_zone(base: np.ndarray, G: np.ndarray, mode: str = "zone") -> tuple[float, np.ndarray]:
+    """Minimise over x the zone of ``base + G x``: ``zone`` max - min, ``mcc`` the max,
+    ``mic`` minus the min. Returns (value, x).
+
+    Only the points at the zone's edges constrain it: the programme is solved on the most
+    extreme points first and grown by the ones that end up outside (an active set), so a
+    plane of thousands of points costs a few small programmes.
+    """
+    n = len(base)
+    k0 = 64
+    if n <= 4 * k0:
+        active = np.arange(n)
+    else:
+        order = np.argsort(base)
+        active = np.unique(np.r_[order[:k0], order[-k0:]])
+    x = np.zeros(G.shape[1])
+    for _ in range(50):
+        val, x = _lp_solve(base[active], G[active], mode)
+        y = base + G @ x
+        ya = y[active]
+        hi, lo = ya.max(), ya.min()
+        tol = 1e-12 * max(1.0, float(np.abs(base).max()))
+        out = np.flatnonzero(((y > hi + tol) & (mode != "mic")) | ((y < lo - tol) & (mode != "mcc")))
+        if out.size == 0:
+            break
+        worst = out[np.argsort(-np.maximum(y[out] - hi, lo - y[out]))[:k0]]
+        active = np.union1d(active, worst)
+    y = base + G @ x
+    return {"zone": float(np.ptp(y)), "mcc": float(y.max()), "mic": float(y.min())}[mode], x
+
+
+def _lp_solve(base: np.ndarray, G: np.ndarray, mode: str) -> tuple[float, np.ndarray]:
+    from scipy.optimize import linprog
+
+    n, k = G.shape
+    # variables: x (k), U, L
+    if mode == "zone":
+        cost = np.r_[np.zeros(k), 1.0, -1.0]
+    elif mode == "mcc":
+        cost = np.r_[np.zeros(k), 1.0, 0.0]
+    else:
+        cost = np.r_[np.zeros(k), 0.0, -1.0]
+    # base + G x <= U  ->  G x - U <= -base ;  base + G x >= L  ->  -G x + L <= base
+    A = np.block([[G, -np.ones((n, 1)), np.zeros((n, 1))], [-G, np.zeros((n, 1)), np.ones((n, 1))]])
+    b = np.r_[-base, base]
+    if mode == "mcc":
+        A, b = A[:n], b[:n]
+    elif mode == "mic":
+        A, b = A[n:], b[n:]
+    bounds = [(None, None)] * (k + 2)
+    res = linprog(cost, A_ub=A, b_ub=b, bounds=bounds, method="highs")
+    if not res.success:
+        raise FitError(f"minimum-zone programme failed: {res.message}")
+    x = res.x[:k]
+    y = base + G @ x
+    return {"zone": float(np.ptp(y)), "mcc": float(y.max()), "mic": float(y.min())}[mode], x
+
+
+def flatness(points: np.ndarray, fit: Fit | None = None) -> float:
+    """Minimum-zone flatness, mm: the smallest distance between two parallel planes holding
+    every point (N, 3) mm. ``fit``: their least-squares plane (computed when absent)."""
+    P, _ = _check(points, None)
+    if len(P) < 3:
+        raise FitError("flatness needs at least 3 points")
+    fit = fit or fit_plane(P)
+    c, nrm, eu, ev_ = fit.params["point"], fit.params["normal"], fit.params["u"], fit.params["v"]
+    for _ in range(3):
+        d = P - c
+        base = d @ nrm
+        G = np.column_stack([d @ eu, d @ ev_])
+        val, x = _lp_zone(base, G)
+        nrm2 = _unit(nrm + x[0] * eu + x[1] * ev_)
+        if np.linalg.norm(nrm2 - nrm) < 1e-12:
+            break
+        nrm = nrm2
+        eu, ev_ = orthonormal_basis(nrm)
+    return float(np.ptp((P - c) @ nrm))
+
+
+def _circle_zone(P: np.ndarray, fit: Fit, mode: str) -> tuple[float, np.ndarray]:
+    centre, nrm = fit.params["centre"], fit.params["normal"]
+    eu, ev_ = orthonormal_basis(nrm)
+    q = np.column_stack([(P - centre) @ eu, (P - centre) @ ev_])
+    c = np.zeros(2)
+    val = float("nan")
+    for _ in range(8):
+        dq = q - c
+        rho = np.hypot(dq[:, 0], dq[:, 1])
+        e = dq / np.maximum(rho, 1e-300)[:, None]
+        val, x = _lp_zone(rho, -e, mode)
+        c = c + x
+        if np.linalg.norm(x) < 1e-10:
+            break
+    rho = np.hypot(*(q - c).T)
+    val = {"zone": float(np.ptp(rho)), "mcc": float(rho.max()), "mic": float(rho.min())}[mode]
+    return val, centre + c[0] * eu + c[1] * ev_
+
+
+def roundness(points: np.ndarray, fit: Fit | None = None, *, normal: np.ndarray | None = None) -> float:
+    """Minimum-zone roundness, mm: the smallest radial distance between two concentric circles
+    holding every point of one cross-section (N, 3) mm, projected along ``normal`` (or
+    ``fit``'s normal; ``fit``: their least-squares circle, computed when absent)."""
+    P, _ = _check(points, None)
+    if len(P) < 4:
+        raise FitError("roundness needs at least 4 points")
+    fit = fit or fit_circle(P, normal=normal)
+    return _circle_zone(P, fit, "zone")[0]
+
+
+def circle_mcc(points: np.ndarray, fit: Fit | None = None, *, normal: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """Minimum circumscribed circle of a cross-section: radius (mm) and centre (3,)."""
+    P, _ = _check(points, None)
+    fit = fit or fit_circle(P, normal=normal)
+    return _circle_zone(P, fit, "mcc")
+
+
+def circle_mic(points: np.ndarray, fit: Fit | None = None, *, normal: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """Maximum inscribed circle of a cross-section: radius (mm) and centre (3,)."""
+    P, _ = _check(points, None)
+    fit = fit or fit_circle(P, normal=normal)
+    return _circle_zone(P, fit, "mic")
+
+
+def cylindricity(points: np.ndarray, fit: Fit | None = None) -> float:
+    """Minimum-zone cylindricity, mm: the smallest radial distance between two coaxial
+    cylinders holding every point (N, 3) mm. ``fit``: their least-squares cylinder."""
+    P, _ = _check(points, None)
+    if len(P) < 6:
+        raise FitError("cylindricity needs at least 6 points")
+    fit = fit or fit_cylinder(P)
+    p, a = fit.params["point"].copy(), fit.params["direction"].copy()
+    for _ in range(8):
+        bu, bv = orthonormal_basis(a)
+        d = P - p
+        h = d @ a
+        rad = d - h[:, None] * a
+        rho = np.linalg.norm(rad, axis=1)
+        e = rad / np.maximum(rho, 1e-300)[:, None]
+        eu_, ev2 = e @ bu, e @ bv
+        G = np.column_stack([-eu_, -ev2, -h * eu_, -h * ev2])
+        _, x = _lp_zone(rho, G)
+        p = p + x[0] * bu + x[1] * bv
+        a = _unit(a + x[2] * bu + x[3] * bv)
+        if np.linalg.norm(x[:2]) < 1e-10 and np.linalg.norm(x[2:]) < 1e-12:
+            break
+    d = P - p
+    h = d @ a
+    return float(np.ptp(np.linalg.norm(d - h[:, None] * a, axis=1)))
