@@ -27,7 +27,9 @@ CORE = CONTRACTS["the core imports no driver, plugin or GUI"]
 
 #: Modules of inspector/ that are not the core: the GUI, and built-in plugins and tools that
 #: live in the package (each says so in its docstring).
-NOT_CORE = {"inspector.gui", "inspector.bench", "inspector.experiment", "inspector.feasibility", "inspector.testing",
+NOT_CORE = {"inspector.gui", "inspector.bench", "inspector.experiment", "inspector.feasibility", "inspector.calibration",
+            "inspector.characteristics",
+            "inspector.testing",
             "inspector.plugin_docs", "inspector.scaffold", "inspector.precompile"}
 
 
