@@ -53,7 +53,8 @@ if TYPE_CHECKING:
     from inspector.session import RunSummary
 
 __all__ = ["HISTORY_FILE", "SCHEMA", "URL_ENV", "CELL_ENV", "HistorySettings", "record", "recorded", "read_history",
-           "read_plant", "read_table", "spooled", "flush_spool", "tally", "draw_history", "plot_history"]
+           "read_plant", "read_table", "spooled", "flush_spool", "tally", "draw_history", "plot_history",
+           "calibration_of", "draw_cameras", "plot_cameras"]
 
 #: The history database, in the run's OUTDIR (beside the result folders).
 HISTORY_FILE = "history.sqlite"
@@ -67,8 +68,11 @@ CELL_ENV = "INSPECTOR_HISTORY_CELL"
 #: (minus polarity) as JSON; ``extras`` what the stages put in ``context.extras`` (JSON, the
 #: result's ``extras``); ``cell`` the cell that inspected (recipe, ``$INSPECTOR_HISTORY_CELL``
 #: or the host name); ``uid`` a UUID given when the row is recorded (what makes a row sent to
-#: the plant database twice one row there). ``extras``, ``cell`` and ``uid`` were added
-#: compatibly: :func:`record` adds them to an older file (its older rows have NULL there).
+#: the plant database twice one row there); ``calibration_json`` the evaluate stage's calibration
+#: health (:func:`calibration_of`: how far each camera is off and its median residual, px, the flagged cameras
+#: and the threshold; NULL when it was not checked). ``extras``, ``cell``, ``uid`` and
+#: ``calibration_json`` were added compatibly: :func:`record` adds them to an older file (its
+#: older rows have NULL there).
 #: The deviation and tolerance columns come from the evaluate stage's typed summary
 #: (:class:`inspector.model.EvaluationSummary`), whichever evaluate variant ran. ``spool``
 #: lists the rows not yet in the plant database (empty without one), oldest first.
@@ -95,7 +99,8 @@ CREATE TABLE IF NOT EXISTS inspections (
     metadata TEXT,
     extras TEXT,
     cell TEXT,
-    uid TEXT
+    uid TEXT,
+    calibration_json TEXT
 );
 CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture);
 CREATE INDEX IF NOT EXISTS inspections_part ON inspections (part_id);
@@ -114,7 +119,7 @@ PRAGMA user_version = 1;
 """
 
 #: Columns added since the first files, with their type: added to an older file when written.
-_ADDED = (("extras", "TEXT"), ("cell", "TEXT"), ("uid", "TEXT"))
+_ADDED = (("extras", "TEXT"), ("cell", "TEXT"), ("uid", "TEXT"), ("calibration_json", "TEXT"))
 
 
 def _connect(path: Path) -> sqlite3.Connection:
@@ -147,7 +152,8 @@ def default_cell() -> str:
 def _migrate(con: sqlite3.Connection) -> None:
     """Create the tables, and add the columns an older file lacks (nothing written when the
     file is current: the unique index on ``uid`` is made last)."""
-    if {"inspections", "defects", "spool", "inspections_uid"} <= {r[0] for r in con.execute("SELECT name FROM sqlite_master")}:
+    if ({"inspections", "defects", "spool", "inspections_uid"} <= {r[0] for r in con.execute("SELECT name FROM sqlite_master")}
+            and {c for c, _ in _ADDED} <= {r[1] for r in con.execute("PRAGMA table_info(inspections)")}):
         return
     con.executescript(SCHEMA)
     con.execute("BEGIN IMMEDIATE")  # two writers migrating one file: the second finds the columns there
@@ -175,6 +181,20 @@ def record(result: InspectionResult, outdir: Path, *, now: datetime | None = Non
         return _record(own, result, now=now, cell=cell, spool=spool)
     finally:
         own.close()
+
+
+def calibration_of(stats: Mapping[str, Any]) -> str | None:
+    """The ``calibration_json`` of a result's ``stats``: ``{"off_px": {camera: px}, "median_px":
+    {camera: px}, "flagged": [cameras], "threshold_px": px}`` (JSON; ``off_px`` is what the
+    threshold judges, see ``stats.calibration``), None when the evaluate stage did not check
+    the calibration."""
+    cal = stats.get("calibration") if isinstance(stats, Mapping) else None
+    if not isinstance(cal, Mapping) or not isinstance(cal.get("cameras"), Mapping):
+        return None
+    cams = cal["cameras"]
+    doc: dict[str, Any] = {key: {name: (c or {}).get(key) for name, c in cams.items()} for key in ("off_px", "median_px")}
+    doc.update(flagged=list(cal.get("flagged") or []), threshold_px=cal.get("threshold_px"))
+    return json.dumps(_finite(doc), sort_keys=True, allow_nan=False)
 
 
 def _record(con: sqlite3.Connection, result: InspectionResult, *, now: datetime | None, cell: str | None,
@@ -207,6 +227,7 @@ def _record(con: sqlite3.Connection, result: InspectionResult, *, now: datetime 
         json.dumps(_finite(dict(result.extras)), default=str, sort_keys=True, allow_nan=False) if result.extras else None,
         cell if cell is not None else default_cell(),
         str(uuid.uuid4()),
+        calibration_of(result.stats),
     )
     _migrate(con)
     cur = con.execute(f"INSERT INTO inspections ({', '.join(COLUMNS)}) VALUES ({', '.join('?' * len(COLUMNS))})", row)
@@ -543,6 +564,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--last", type=int, metavar="N", help="only the last N inspections")
     p.add_argument("--json", action="store_true", help="the rows as JSON")
     p.add_argument("--plot", metavar="PNG", help="also draw the trend: each part's deviation range against its tolerance")
+    p.add_argument("--cameras", metavar="PNG", help="also draw the calibration health: how far each camera was off (px) "
+                                                    "in each inspection, against the flagging threshold")
 
 
 def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
@@ -559,6 +582,83 @@ def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+def plot_cameras(rows: list[dict[str, Any]], out: Path) -> Path:
+    """The calibration health of ``rows`` (:func:`read_history`), drawn by
+    :func:`draw_cameras`, written to ``out`` (PNG)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(12, 4.5), dpi=110)
+    draw_cameras(ax, rows)
+    fig.tight_layout()
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def _calibration(row: Mapping[str, Any]) -> dict[str, Any] | None:
+    """A row's ``calibration_json`` read (None: not checked, or not readable)."""
+    raw = row.get("calibration_json")
+    if not raw:
+        return None
+    try:
+        doc = json.loads(raw) if isinstance(raw, str) else raw
+    except ValueError:
+        return None
+    return doc if isinstance(doc, dict) and isinstance(doc.get("off_px"), dict) else None
+
+
+def draw_cameras(ax: Any, rows: list[dict[str, Any]]) -> str:
+    """Draw each camera's calibration health over ``rows`` on the matplotlib axes ``ax``: per
+    camera a line of how far it was off (px, ``stats.calibration`` ``off_px``) in each
+    inspection, in order, a flagged inspection as a ring, and the threshold as a dashed
+    line. Inspections without the figures (errors, older rows) are gaps. Returns the title."""
+    docs = [_calibration(r) for r in rows]
+    names = sorted({n for d in docs if d is not None for n in d["off_px"]})
+    nan = float("nan")
+    x = list(range(len(rows)))
+    worst: dict[str, float] = {}
+    cmap = _camera_colours(len(names))
+    for k, name in enumerate(names):
+        y = [nan if d is None or d["off_px"].get(name) is None else float(d["off_px"][name]) for d in docs]
+        worst[name] = max((v for v in y if v == v), default=nan)
+        ax.plot(x, y, "-", color=cmap[k], lw=1.2, marker=".", ms=4, label=name)
+        flagged = [(i, v) for i, (d, v) in enumerate(zip(docs, y)) if d is not None and name in (d.get("flagged") or [])]
+        if flagged:
+            ax.plot([i for i, _ in flagged], [v for _, v in flagged], "o", mfc="none", mec="#c01010", ms=10, mew=2)
+    limit = [nan if d is None or d.get("threshold_px") is None else float(d["threshold_px"]) for d in docs]
+    if any(v == v for v in limit):
+        ax.step(x, limit, where="mid", color="#c01010", ls="--", lw=1.2, label="threshold")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.set_xlim(-0.5, max(len(rows), 1) - 0.5)
+    ax.set_ylim(bottom=0.0)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
+    ax.set_xlabel("inspection (oldest first)")
+    ax.set_ylabel("camera off by, px")
+    if names:
+        ax.legend(loc="upper left", fontsize=7, ncol=min(len(names) + 1, 9))
+    flagged_rows = sum(1 for d in docs if d is not None and d.get("flagged"))
+    checked = sum(1 for d in docs if d is not None)
+    top = max(worst, key=lambda n: worst[n] if worst[n] == worst[n] else -1.0) if worst else None
+    most = f"; most off: {top} {worst[top]:.2f} px" if top is not None and worst[top] == worst[top] else ""
+    title = f"calibration health: {checked} of {len(rows)} inspections checked, {flagged_rows} with a camera flagged{most}"
+    ax.set_title(title, fontsize=11)
+    if len(rows) <= 30:
+        ax.set_xticks(range(len(rows)), [r["capture"][:14] for r in rows], rotation=60, ha="right", fontsize=7)
+    return title
+
+
+def _camera_colours(n: int) -> list[Any]:
+    """``n`` distinguishable line colours (matplotlib's tab20, then repeated)."""
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab20"]
+    return [cmap(k % 20) for k in range(n)]
 
 
 #: Verdict colours of the trend (the GUI's history strip uses the same).
@@ -673,12 +773,13 @@ def run(args) -> int:
     except InputError as e:
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
-    if args.plot:
-        try:
-            plot_history(rows, Path(args.plot))
-        except OSError as e:
-            print(f"inspector: error: {args.plot}: cannot write ({e.strerror or e})", file=sys.stderr)
-            return 3
+    for picture, draw in ((args.plot, plot_history), (args.cameras, plot_cameras)):
+        if picture:
+            try:
+                draw(rows, Path(picture))
+            except OSError as e:
+                print(f"inspector: error: {picture}: cannot write ({e.strerror or e})", file=sys.stderr)
+                return 3
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
@@ -696,8 +797,9 @@ def run(args) -> int:
     waiting = 0 if plant else spooled(Path(args.outdir))
     if waiting:
         print(f"{waiting} of them wait in the spool for the plant database (sent at the next record, or with --send)")
-    if args.plot:
-        print(f"wrote {args.plot}")
+    for picture in (args.plot, args.cameras):
+        if picture:
+            print(f"wrote {picture}")
     return 0
 
 

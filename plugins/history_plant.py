@@ -2,7 +2,8 @@
 
 Same columns as ``OUTDIR/history.sqlite`` (:data:`PG_SCHEMA`: ``REAL`` becomes ``DOUBLE
 PRECISION``, ``id`` an identity), with ``cell`` (which cell inspected) and ``uid`` (a UUID
-given to the row when it was recorded, ``UNIQUE``). Rows are inserted with ``ON CONFLICT
+given to the row when it was recorded, ``UNIQUE``); a column added since (:data:`PG_ADDED`)
+is added to an older plant database when a cell connects. Rows are inserted with ``ON CONFLICT
 (uid) DO NOTHING``, so a row sent twice (a spool flushed again after a crash between the
 server's commit and the spool's delete) is stored once, and its defects with it.
 
@@ -22,7 +23,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 from urllib.parse import unquote, urlsplit
 
-__all__ = ["COLUMNS", "DEFECT_COLUMNS", "PG_SCHEMA", "PlantDatabase", "PlantUnavailable", "check_url", "mask_url", "scrub"]
+__all__ = ["COLUMNS", "DEFECT_COLUMNS", "PG_ADDED", "PG_SCHEMA", "PlantDatabase", "PlantUnavailable", "check_url", "mask_url", "scrub"]
 
 #: The plant tables: ``history.sqlite``'s, column for column, plus ``cell`` and ``uid``.
 PG_SCHEMA = (
@@ -48,7 +49,8 @@ PG_SCHEMA = (
     metadata TEXT,
     extras TEXT,
     cell TEXT NOT NULL,
-    uid TEXT NOT NULL UNIQUE
+    uid TEXT NOT NULL UNIQUE,
+    calibration_json TEXT
 )""",
     "CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture)",
     "CREATE INDEX IF NOT EXISTS inspections_part ON inspections (part_id)",
@@ -67,7 +69,10 @@ PG_SCHEMA = (
 #: The row columns (``id`` aside), in the order of ``history.sqlite`` and of :data:`PG_SCHEMA`.
 COLUMNS = ("inspected_at", "capture", "part_id", "triggered_at", "recipe", "verdict", "error", "n_points",
            "deviation_mean_mm", "deviation_min_mm", "deviation_max_mm", "n_defects", "worst_mm", "tolerance_lower_mm",
-           "tolerance_upper_mm", "total_s", "result_dir", "metadata", "extras", "cell", "uid")
+           "tolerance_upper_mm", "total_s", "result_dir", "metadata", "extras", "cell", "uid", "calibration_json")
+#: Columns added to the plant tables since they were first made, with their type: a database
+#: made by an older version gets them when a cell connects (its older rows have NULL there).
+PG_ADDED = (("calibration_json", "TEXT"),)
 DEFECT_COLUMNS = ("kind", "n_points", "worst_mm", "x", "y", "z", "region")
 
 _INSERT = (f"INSERT INTO inspections ({', '.join(COLUMNS)}) VALUES ({', '.join(['%s'] * len(COLUMNS))})"
@@ -222,6 +227,14 @@ class PlantDatabase:
                     conn.execute("SELECT pg_advisory_xact_lock(%s)", (_SCHEMA_LOCK,))
                     for statement in PG_SCHEMA:
                         conn.execute(statement)
+            have = {r[0] for r in conn.execute(
+                "SELECT attname FROM pg_attribute WHERE attrelid = to_regclass('inspections') AND attnum > 0"
+                " AND NOT attisdropped")}
+            if any(column not in have for column, _ in PG_ADDED):  # a database made by an older version
+                with conn.transaction():
+                    conn.execute("SELECT pg_advisory_xact_lock(%s)", (_SCHEMA_LOCK,))
+                    for column, kind in PG_ADDED:
+                        conn.execute(f"ALTER TABLE inspections ADD COLUMN IF NOT EXISTS {column} {kind}")
         except psycopg.Error as e:
             conn.close()
             raise self._unavailable(e) from None

@@ -16,7 +16,8 @@ The model follows the concepts of OPC 40100-1 (machine vision), kept as small as
   ``StartSingleJob``, ``StartContinuous``, ``Stop``, ``Abort`` and ``Reset``;
 * recipe management: ``RecipeName`` (write a name of ``Recipes`` to switch) and ``Recipes``;
 * result management: one result at a time, ``Verdict`` ... ``LastResult``, then
-  ``ResultCounter`` (always written last).
+  ``ResultCounter`` (always written last); with it the calibration state, ``CalibrationOk`` and
+  ``CalibrationFlagged`` (the evaluate stage's check of every camera on every part).
 """
 
 from __future__ import annotations
@@ -110,13 +111,20 @@ VARIABLES: tuple[Variable, ...] = (
              "The signed deviation of largest magnitude over the measured points, mm (negative: missing "
              "material); NaN when the part was not measured (error, aborted, no evaluate stage).", NAN),
     Variable("DefectCount", "UInt32", "r", "result", "Defect clusters that reject the part.", 0),
+    Variable("CalibrationOk", "Boolean", "r", "result",
+             "False when the last inspection that checked the calibration found a camera disagreeing with the "
+             "others (evaluate's health_px): check its mounting or recalibrate; true otherwise. An inspection that "
+             "could not check it (error before evaluate, aborted) leaves it as it was.", True),
+    Variable("CalibrationFlagged", "String", "r", "result",
+             "The cameras that disagree, comma-separated (e.g. cam07), as of the last inspection that checked the "
+             "calibration; empty when none.", ""),
     Variable("ErrorText", "String", "r", "result",
              "One line: why the verdict is error or aborted, or why the last write or call was refused; "
              "empty when all went well.", ""),
     Variable("LastResult", "String", "r", "result",
              "The result as JSON (counter, part_id, capture, verdict, error, recipe, cycle_s, run_s (Session.run), "
              "inspection_s (the stages), worst_deviation_mm, defect_count, defects (at most 10), result_dir, "
-             "triggered_at).", "{}"),
+             "triggered_at, calibration: {flagged, off_px per camera} or null).", "{}"),
     Variable("ResultCounter", "UInt32", "r", "result",
              "+1 for every accepted trigger, written after the result's other variables (so a PLC polling it "
              "never reads a stale verdict); 0 at server start, wraps at 2^32.", 0),

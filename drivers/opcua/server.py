@@ -16,6 +16,7 @@ subscriptions and refusals while ``Busy``. The handshake:
 * an accepted trigger sets ``Busy`` and clears ``Ready`` before the call returns;
 * its result is published in one turn of the event loop, in this order: ``Verdict``,
   ``VerdictCode``, ``ResultPartId``, ``CycleTime``, ``WorstDeviation``, ``DefectCount``,
+  ``CalibrationOk`` and ``CalibrationFlagged`` (when the part checked the calibration),
   ``ErrorText``, ``LastResult``, then ``ResultCounter`` (+1, exactly once per accepted
   trigger, whatever the verdict: pass, fail, error or aborted), then ``Trigger`` back to
   false, ``Busy`` false, ``Ready`` and ``State``. A PLC that sees the counter change reads
@@ -511,6 +512,10 @@ class InspectorServer:
         await self._set("CycleTime", float(rec.get("cycle_s") or 0.0))
         await self._set("WorstDeviation", float("nan") if worst is None else float(worst))
         await self._set("DefectCount", int(rec.get("defect_count") or 0))
+        cal = rec.get("calibration")
+        if cal is not None:  # checked: the calibration state is this part's; else it stays
+            await self._set("CalibrationOk", not cal["flagged"])
+            await self._set("CalibrationFlagged", ",".join(cal["flagged"]))
         await self._set("ErrorText", rec.get("error") or "")
         await self._set("LastResult", json.dumps(rec, separators=(",", ":"), default=str, allow_nan=False))
         await self._set("ResultCounter", self._counter)
@@ -640,7 +645,18 @@ def _record(result: Any, folder: Path | None) -> dict[str, Any]:
             "error": result.error, "recipe": result.recipe, "inspection_s": _finite(result.timings_s.get("total")),
             "worst_deviation_mm": worst, "defect_count": len(result.defects), "defects": defects,
             "result_dir": str(folder) if folder is not None else None,
-            "triggered_at": None if meta.get("timestamp") is None else str(meta["timestamp"])}
+            "triggered_at": None if meta.get("timestamp") is None else str(meta["timestamp"]),
+            "calibration": _calibration(result.stats)}
+
+
+def _calibration(stats: Any) -> dict[str, Any] | None:
+    """The result's calibration health as ``LastResult`` tells it: the flagged cameras and how
+    far each camera is off (px); None when the part did not check it."""
+    cal = stats.get("calibration") if isinstance(stats, dict) else None
+    if not isinstance(cal, dict) or not isinstance(cal.get("cameras"), dict):
+        return None
+    return {"flagged": [str(n) for n in cal.get("flagged") or ()],
+            "off_px": {str(n): _finite((c or {}).get("off_px")) for n, c in cal["cameras"].items()}}
 
 
 def _log_line(result: Any) -> str:

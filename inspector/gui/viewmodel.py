@@ -17,7 +17,7 @@ import numpy as np
 from inspector.errors import InputError
 
 __all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text", "camera_thumbs",
-           "normalised", "point_arrays", "SPAN", "SCALED"]
+           "calibration_flags", "normalised", "point_arrays", "SPAN", "SCALED"]
 
 #: The colour scale spans this many tolerance widths on each side.
 SPAN = 3.0
@@ -96,6 +96,9 @@ class ResultView:
         The reference mesh placed on the part (world frame).
     camera_centres : (C, 3) float
         Optical centres of the rig's cameras (world mm), in ``camera_names`` order.
+    calibration_flagged : dict
+        The cameras the evaluate stage's calibration health flagged, each with why in words
+        (:func:`calibration_flags`; the camera strip marks their tiles).
     prepared : dict
         What was computed for drawing off the GUI thread (arrays, images), so the GUI thread
         only hands it to the widgets: :data:`SCALED` (``(N,) float32``, deviation in units
@@ -122,6 +125,25 @@ class ResultView:
     camera_centres: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     stats: dict[str, Any] = field(default_factory=dict)
     prepared: dict[str, Any] = field(default_factory=dict)
+    calibration_flagged: dict[str, str] = field(default_factory=dict)
+
+
+def calibration_flags(stats: Any) -> dict[str, str]:
+    """The cameras a result's ``stats.calibration`` flags, each with why in words: how far
+    it is off the others and what to do."""
+    cal = stats.get("calibration") if isinstance(stats, dict) else None
+    if not isinstance(cal, dict):
+        return {}
+    cams = cal.get("cameras")
+    if not isinstance(cams, dict):
+        cams = {}
+    out = {}
+    for name in cal.get("flagged") or ():
+        off = (cams.get(name) or {}).get("off_px")
+        by = f" by {off:.2f} px" if isinstance(off, (int, float)) else ""
+        out[str(name)] = (f"calibration: disagrees with the other cameras{by} "
+                          f"(threshold {cal.get('threshold_px', '?')} px): check its mounting or recalibrate")
+    return out
 
 
 def normalised(deviation: np.ndarray, tolerance: tuple[float, float]) -> np.ndarray:
@@ -246,6 +268,7 @@ def camera_thumbs(ctx: Any, keep_full: bool = True) -> tuple[CameraThumb, ...]:
         if s is not None and len(s.contour) and ctx.bcps is not None:
             unmatched[i] = max(0.0, 1.0 - per_cam[i] / len(s.contour))
     median = float(np.median(unmatched)) if len(unmatched) else 0.0
+    calibration = calibration_flags(ctx.evaluation.stats) if ctx.evaluation is not None else {}
     out = []
     for i, n in enumerate(names):
         if n not in capture.images:
@@ -259,6 +282,8 @@ def camera_thumbs(ctx: Any, keep_full: bool = True) -> tuple[CameraThumb, ...]:
         if ctx.bcps is not None and unmatched[i] > median + DISAGREE_MARGIN:
             flags.append(f"silhouette disagrees with the others: {100 * unmatched[i]:.0f} % of its contour rays "
                          f"inconsistent (median {100 * median:.0f} %)")
+        if n in calibration:
+            flags.append(calibration[n])
         out.append(CameraThumb(n, small, scale, origin, full if keep_full else None, contour,
                                bool(s.touches_border) if s is not None else False, float(unmatched[i]), tuple(flags)))
     return tuple(out)
@@ -325,6 +350,7 @@ def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, ke
         camera_centres=centres,
         stats=doc["stats"],
         prepared=prepared,
+        calibration_flagged=calibration_flags(doc["stats"]),
     )
 
 
@@ -394,5 +420,6 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
         camera_centres=centres,
         stats=stats,
         prepared={SCALED: normalised(deviation, tolerance)},
+        calibration_flagged=calibration_flags(stats),
     )
 

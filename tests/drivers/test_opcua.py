@@ -348,6 +348,41 @@ def test_recipes_switch_by_name_and_a_bad_one_is_refused(cell):
     assert cell.server.recipe_name == "fast"
 
 
+def test_the_calibration_state_is_published_with_the_result(cell):
+    """A result whose calibration health flags a camera sets CalibrationOk false and names it,
+    before ResultCounter; one that did not check it (an error) leaves the state as it was."""
+    from inspector.model import InspectionResult
+    from inspector_drivers.opcua.server import _record
+
+    def published(flagged: list[str] | None) -> dict:
+        stats = {} if flagged is None else {"calibration": {
+            "cameras": {n: {"off_px": 1.9 if n in flagged else 0.03} for n in ("cam00", "cam01", "cam02")},
+            "flagged": flagged, "threshold_px": 0.3}}
+        res = InspectionResult(capture="CAL", recipe="opcua-fast", verdict="pass" if flagged is not None else "error",
+                               error=None if flagged is not None else "segment: broken", timings_s={"total": 0.1},
+                               stats=stats)
+        rec = _record(res, None)
+        asyncio.run_coroutine_threadsafe(cell.server._publish(rec), cell.server._loop).result(WAIT_S)
+        return rec
+
+    async def main():
+        async with plc(cell) as p:
+            assert model.variable("CalibrationOk").initial is True
+            out = []
+            for flagged in (["cam01"], None, []):
+                before = await p.read("ResultCounter")
+                rec = published(flagged)
+                res = await p.result_after(before)
+                out.append((await p.read("CalibrationOk", "CalibrationFlagged"), json.loads(res["LastResult"]), rec))
+            return out
+
+    (ok1, last1, _), (ok2, last2, _), (ok3, _, _) = run(main())
+    assert ok1 == [False, "cam01"] and last1["calibration"] == {"flagged": ["cam01"],
+                                                                "off_px": {"cam00": 0.03, "cam01": 1.9, "cam02": 0.03}}
+    assert ok2 == [False, "cam01"] and last2["calibration"] is None  # not checked: the state stays
+    assert ok3 == [True, ""]
+
+
 def test_continuous_execution_until_stop(cell):
     async def main():
         async with plc(cell) as p:

@@ -75,3 +75,30 @@ def test_reason_words():
         "excess material in region 'bore': +0.310 mm, limit +0.150 mm (+1 more defect)")
     assert reason_text("error", [], (-0.1, 0.1), "segment: camera cam03: empty silhouette") == "segment: camera cam03: empty silhouette"
     assert reason_text("pass", [], (-0.1, 0.1), None) == ""
+
+
+def test_a_camera_the_calibration_health_flags_is_marked(sim_captures, tmp_path):
+    """One camera of the rig turned by 1.5 px (the images stay the true rig's): its tile is
+    flagged with the calibration's words, the others are not; a view from the folder knows
+    the flagged camera too."""
+    from scipy.spatial.transform import Rotation
+
+    from inspector.gui.viewmodel import calibration_flags
+    from inspector.model import Rig
+    from inspector.outputs import write_result
+    from inspector_drivers.replay.folder import read_capture
+
+    cap = read_capture(sim_captures["good"])
+    name = cap.rig.names[7]
+    cam = cap.rig.camera(name)
+    D = Rotation.from_rotvec([np.arctan(1.5 / cam.K[0, 0]), 0.0, 0.0]).as_matrix()
+    rig = Rig(tuple(dataclasses.replace(c, R=D @ c.R, t=D @ c.t) if c.name == name else c for c in cap.rig.cameras))
+    outcome, ref = _inspect(dataclasses.replace(cap, rig=rig))
+    view = from_outcome(outcome, None, ref)
+    assert list(view.calibration_flagged) == [name]
+    assert view.calibration_flagged[name].startswith("calibration: disagrees with the other cameras by ")
+    flagged = {t.name: t.flags for t in view.cameras if t.flags}
+    assert set(flagged) == {name} and view.calibration_flagged[name] in flagged[name]
+    past = from_folder(write_result(outcome.result, tmp_path), ref)
+    assert past.calibration_flagged == view.calibration_flagged
+    assert calibration_flags({}) == {} and calibration_flags({"calibration": {"cameras": {}, "flagged": []}}) == {}

@@ -414,3 +414,80 @@ def test_rows_spooled_by_an_earlier_run_are_sent_by_the_next_or_by_send(pg_serve
         pass  # the run's start sends what waits
     assert _spool(out) == 0
     assert [c for (c,) in query("SELECT capture FROM inspections ORDER BY id")] == [f"cell-d-part-{i:04d}" for i in range(5)]
+
+
+# --------------------------------------------------------------------------- calibration health (issue 24)
+
+
+def _calibrated(i: int, cell: str, flagged: tuple[str, ...] = ()) -> InspectionResult:
+    """:func:`_result` with the evaluate stage's calibration health in its stats."""
+    import dataclasses
+
+    cams = {f"cam{k:02d}": {"median_px": 0.02, "p90_px": 0.05, "signed_px": 0.0, "shift_px": 0.03, "off_px": 0.03,
+                            "rays": 64} for k in range(4)}
+    for name in flagged:
+        cams[name] = {**cams[name], "shift_px": 1.9, "off_px": 1.9, "median_px": 0.9}
+    cams["cam03"]["median_px"] = float("nan")  # not measured: null, never NaN in the JSON
+    stats = {"calibration": {"cameras": cams, "flagged": list(flagged), "threshold_px": 0.3}}
+    return dataclasses.replace(_result(i, cell), stats=stats)
+
+
+def test_the_calibration_health_is_a_column_and_an_older_file_gets_it(tmp_path):
+    # A file of the version before (extras, cell, uid and the spool, no calibration_json).
+    con = sqlite3.connect(tmp_path / "history.sqlite")
+    con.executescript(history.SCHEMA.replace(",\n    calibration_json TEXT", ""))
+    con.execute("CREATE UNIQUE INDEX inspections_uid ON inspections (uid)")
+    con.execute("INSERT INTO inspections (inspected_at, capture, recipe, verdict, n_defects) VALUES ('t', 'old', 'r', 'pass', 0)")
+    con.commit()
+    con.close()
+    history.record(_calibrated(1, "cell-1", ("cam02",)), tmp_path, cell="cell-1")
+    history.record(_result(2, "cell-1"), tmp_path, cell="cell-1")  # no calibration checked (an error, an older stage)
+    rows = history.read_history(tmp_path)
+    assert [r["calibration_json"] is None for r in rows] == [True, False, True]
+    doc = json.loads(rows[1]["calibration_json"])
+    assert doc["flagged"] == ["cam02"] and doc["threshold_px"] == 0.3
+    assert doc["off_px"] == {"cam00": 0.03, "cam01": 0.03, "cam02": 1.9, "cam03": 0.03}
+    assert doc["median_px"]["cam03"] is None
+
+
+def test_the_camera_trend_marks_the_flagged_inspections(tmp_path):
+    import cv2
+
+    for i in range(6):
+        history.record(_calibrated(i, "cell-1", ("cam01",) if i >= 4 else ()), tmp_path, cell="cell-1")
+    history.record(_result(6, "cell-1"), tmp_path, cell="cell-1")  # a gap
+    png = history.plot_cameras(history.read_history(tmp_path), tmp_path / "cameras.png")
+    img = cv2.imread(str(png)).astype(int)
+    red = (img[..., 2] > 170) & (img[..., 1] < 60) & (img[..., 0] < 60)  # threshold line, rings
+    assert red.sum() > 300
+
+
+def test_an_older_plant_database_gets_the_new_columns(plant, tmp_path):
+    """A plant database made before the calibration column: a cell that connects adds it, and
+    its rows (and the older ones) read back."""
+    from inspector_plugins.history_plant import PG_ADDED, PG_SCHEMA
+
+    url, query = plant
+    old = PG_SCHEMA[0]
+    for column, kind in PG_ADDED:
+        old = old.replace(f",\n    {column} {kind}", "")
+    assert "calibration_json" not in old
+    import psycopg
+
+    with psycopg.connect(url, autocommit=True) as con:
+        for statement in (old, *PG_SCHEMA[1:]):
+            con.execute(statement)
+        con.execute("INSERT INTO inspections (inspected_at, capture, recipe, verdict, n_defects, cell, uid)"
+                    " VALUES ('t', 'old', 'r', 'pass', 0, 'cell-0', 'u-0')")
+    out = tmp_path / "cell-c"
+    out.mkdir()
+    history.record(_calibrated(1, "cell-c", ("cam02",)), out, cell="cell-c", spool=True)
+    plant_db = history.PlantDatabase(url)
+    try:
+        assert history.flush_spool(out, plant_db) == 1
+    finally:
+        plant_db.close()
+    got = query("SELECT capture, calibration_json FROM inspections ORDER BY id")
+    assert got[0] == ("old", None) and json.loads(got[1][1])["flagged"] == ["cam02"]
+    rows = history.read_plant(url)
+    assert sorted(r["capture"] for r in rows) == ["cell-c-part-0001", "old"] and all("calibration_json" in r for r in rows)
