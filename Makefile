@@ -4,7 +4,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PYTHON ?= python3
 
-.PHONY: demo test setup bench clean
+.PHONY: demo test setup bench clean docs
 
 $(STAMP): requirements.lock pyproject.toml scripts/sysdeps.sh
 	@bash scripts/sysdeps.sh
@@ -24,6 +24,10 @@ demo: $(STAMP)
 # that module fixtures (clusters, servers, captures) are made once.
 test: $(STAMP)
 	$(VENV)/bin/pytest -q -n auto --maxprocesses=4 --dist loadfile
+
+# The manual (mkdocs.yml): docs/ and the README as its home page, into out/site/; warnings are errors.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -522,15 +522,15 @@ def test_inspector_serve_and_the_example_client_as_the_readme_shows(tmp_path, ca
 
 
 # --------------------------------------------------------------------------- light and documented
-def test_the_plugin_loads_without_asyncua_and_the_readme_documents_the_model():
+def test_the_plugin_loads_without_asyncua_and_the_manual_documents_the_model():
     code = ("import sys, inspector\nfrom inspector.manager import create_plugin_manager\n"
             "pm = create_plugin_manager(); assert 'serve' in pm.commands.names()\n"
             "print([m for m in ('asyncua', 'cryptography', 'inspector_drivers.opcua.server') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
-    readme = (ROOT / "README.md").read_text()
-    assert model.markdown_table() in readme  # the README's table is the model's, node for node
-    assert "examples/plc_client.py" in readme and "inspector serve" in readme
+    page = (ROOT / "docs" / "opcua.md").read_text()
+    assert model.markdown_table() in page  # the manual's table is the model's, node for node
+    assert "examples/plc_client.py" in page and "inspector serve" in page
 
 
 def test_failed_logins_are_slowed_per_user_and_for_everyone():
