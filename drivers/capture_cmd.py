@@ -15,6 +15,12 @@ KEY=VALUE`` (TOML values: ``count=3``, ``exposure_us=2500.0``, ``serials={cam00=
 value that is not TOML is a string: ``rig=rig/rig.json``), then ``--count``. They are checked
 like a recipe's before any device is opened.
 
+Calibration captures (commissioning the cell, ``docs/commissioning.md``): one capture folder
+per pose of the calibration target, so one trigger per pose, the target moved between them
+(:data:`CALIBRATION_HELP`, shown by ``inspector capture --help``); then ``inspector calibrate
+TARGET.toml --captures DIR --out rig.json``. The empty field for flat-fielding: a few triggers
+with nothing in the rig, then ``inspector calibrate --background --captures DIR --out CELL``.
+
 Exit status: 0 every trigger was written; 2 invalid command, recipe or parameter (nothing
 acquired); 3 the driver could not be opened, or at least one trigger failed (the others are
 written, each failure is one line naming the camera).
@@ -39,10 +45,36 @@ if TYPE_CHECKING:
     from inspector.manager import PluginManager
     from inspector.registry import CommandRegistry
 
-__all__ = ["add_parser", "run", "parse_param", "driver_table"]
+__all__ = ["add_parser", "run", "parse_param", "driver_table", "CALIBRATION_HELP"]
 
 EXIT_OK, EXIT_INVALID, EXIT_ERROR, EXIT_INTERRUPTED = 0, 2, 3, 130
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+#: ``inspector capture --help``'s epilog: how to take the captures ``inspector calibrate`` reads.
+CALIBRATION_HELP = """\
+calibration captures (commissioning the cell; see docs/commissioning.md):
+  inspector calibrate reads one capture folder per pose of the calibration target (a ChArUco
+  board or cube described by a TARGET.toml, e.g. examples/calibration/charuco_cube.toml), so
+  take one trigger per pose and move the target between triggers:
+
+    for i in $(seq 30); do
+      read -p "pose $i: place the target in the rig, tilted a new way, then Enter "
+      inspector capture --recipe cell.toml --out calib/ --count 1 -q
+    done
+    inspector calibrate TARGET.toml --captures calib/ --out cell/rig.json
+
+  Each run adds one folder (named by driver, time and number). Take 20 to 30 poses: the target
+  near the middle of the rig, turned so that every camera sees a board in several poses, near
+  the edges of its image too, some of them steeply. The driver's rig parameter may name a
+  nominal rig.json (camera names and image sizes): calibrate reads only the images. Simulated
+  captures of the same kind: inspector simulate --target TARGET.toml --poses 30 --out calib/.
+
+  The empty field, for flat-fielding: with nothing in the rig,
+    inspector capture --recipe cell.toml --out empty/ --count 8
+    inspector calibrate --background --captures empty/ --out cell/
+  writes cell/background/<camera>.png; a driver whose rig parameter names cell/ attaches it to
+  every capture.
+"""
 
 
 def add_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -51,6 +83,8 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
         "capture",
         help="acquire captures from a driver and write them as capture folders (replayable)",
         description="Acquire triggers from a driver and write each as a capture folder (CONTRACT layout).",
+        epilog=CALIBRATION_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--driver", metavar="NAME", help="driver (see `inspector plugins`); default: the recipe's driver")
     p.add_argument("--out", required=True, metavar="DIR", help="folder that receives one capture folder per trigger")

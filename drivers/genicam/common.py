@@ -6,7 +6,8 @@ one set of frames per trigger (:meth:`Session.trigger`). :class:`LiveDriver` tur
 the :class:`~inspector.registry.Driver` protocol: ``acquire()`` yields one
 :class:`~inspector.registry.Acquisition` per trigger, whose ``load()`` fires the trigger,
 gathers a frame from every camera of the rig and returns a
-:class:`~inspector.model.Capture` with the rig read from ``rig.json``. A trigger that does not
+:class:`~inspector.model.Capture` with the rig read from ``rig.json`` (and the cameras'
+empty-field images ``background/<camera>.png`` beside it, when there). A trigger that does not
 give every camera a good frame raises :class:`~inspector.errors.CaptureError` naming the
 camera(s); the driver stays usable and the next trigger is independent.
 """
@@ -26,7 +27,7 @@ from inspector.errors import CaptureError, InputError
 from inspector.model import Capture, Rig
 from inspector.registry import Acquisition
 
-__all__ = ["Frame", "Session", "LiveDriver", "load_rig", "camera_keys", "join_errors", "DeviceMatch"]
+__all__ = ["Frame", "Session", "LiveDriver", "load_rig", "load_backgrounds", "camera_keys", "join_errors", "DeviceMatch"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,6 +66,31 @@ def load_rig(path: str, driver: str) -> Rig:
         return read_rig(p)
     except CaptureError as exc:
         raise InputError(f"{driver}: {p}: {exc}") from None
+
+
+def load_backgrounds(path: str, rig: Rig, driver: str) -> dict[str, np.ndarray]:
+    """The cameras' empty-field images beside the rig of ``params.rig``: ``background/<camera>.png``
+    in the folder that holds ``rig.json`` (``inspector calibrate --background --out FOLDER``),
+    attached to every capture so the segment stage flat-fields it. ``{}`` without that folder;
+    a camera without its image, or an image that does not fit its camera, is an InputError."""
+    from inspector_drivers.replay.folder import BACKGROUND_DIR, _decode_png
+
+    p = Path(path).expanduser()
+    folder = p if p.is_dir() else p.parent
+    d = folder / BACKGROUND_DIR
+    if not d.is_dir():
+        return {}
+    out: dict[str, np.ndarray] = {}
+    for cam in rig:
+        f = d / f"{cam.name}.png"
+        if not f.is_file():
+            raise InputError(f"{driver}: {f}: missing (every camera needs its empty-field image, or none: "
+                             "inspector calibrate --background)")
+        try:
+            out[cam.name] = _decode_png(f, str(f), cam, str(d.resolve()))
+        except CaptureError as exc:
+            raise InputError(f"{driver}: {exc}") from None
+    return out
 
 
 @dataclass(frozen=True)
@@ -140,6 +166,7 @@ class LiveDriver:
     def __init__(self, params: Any) -> None:
         self.params = params
         self.rig = load_rig(getattr(params, "rig", ""), self.name)
+        self.backgrounds = load_backgrounds(getattr(params, "rig", ""), self.rig, self.name)
         self.matches = camera_keys(
             self.rig,
             getattr(params, "serials", None),
@@ -204,6 +231,7 @@ class LiveDriver:
             name=name,
             rig=self.rig,
             images=images,
+            backgrounds=self.backgrounds,
             polarity=getattr(self.params, "polarity", "dark-object"),
             metadata=metadata,
         )

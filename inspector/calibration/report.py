@@ -150,6 +150,11 @@ def text(summary: dict[str, Any]) -> str:
         lines += ["", "Seen too little:"] + [f"  {a}" for a in summary["advice"]]
     if "rig" in summary:
         lines += ["", f"Wrote {summary['rig']}; report and pictures in {summary.get('report_dir', '')}"]
+    t = summary.get("timings_s")
+    if t:
+        from inspector.calibration.solve import timing_line
+
+        lines.append(timing_line(t).replace("done in", "Time:", 1))
     return "\n".join(lines)
 
 

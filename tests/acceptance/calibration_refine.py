@@ -165,6 +165,13 @@ def main(argv: list[str] | None = None) -> int:
     from inspector.calibration.command import write_rig
     from inspector_drivers.sim.simulate import SimParams, sim_rig
 
+    # accuracy, not speed, is measured here: on a loaded machine a slow stage must not become an
+    # error by the watchdog's limits (the recipe's [budget], read when the recipe is loaded; the
+    # refine command inherits them)
+    import os
+
+    os.environ.setdefault("INSPECTOR_STAGE_LIMIT_S", "3600")
+    os.environ.setdefault("INSPECTOR_INSPECTION_LIMIT_S", "7200")
     work = args.work
     work.mkdir(parents=True, exist_ok=True)
     refine_dir, eval_dir = work / "refine", work / "eval"

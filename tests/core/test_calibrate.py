@@ -97,6 +97,13 @@ def test_calibrates_the_rig_from_rendered_captures(calibrated, captures):
     # progress per stage, the report as text, its files
     for stage in ("detecting", "initialising", "adjusting", "writing"):
         assert f"calibrate: {stage}" in stderr
+    # each stage's seconds, and the command's own benchmark line (also in report.json)
+    import re
+
+    assert re.search(r"calibrate: found \d+ boards, \d+ corners \(detection [\d.]+ s\)", stderr)
+    assert re.search(r"calibrate: done in [\d.]+ s \([\d.]+ s of CPU\): detection [\d.]+ s, initialisation [\d.]+ s, "
+                     r"adjustment [\d.]+ s, uncertainty [\d.]+ s, writing [\d.]+ s", stderr), stderr
+    assert re.search(r"^Time: [\d.]+ s", stdout, re.M)
     assert "cam07" in stdout and "RMS" in stdout
     rep = out.with_name("rig_report")
     report = json.loads((rep / "report.json").read_text())
@@ -105,6 +112,9 @@ def test_calibrates_the_rig_from_rendered_captures(calibrated, captures):
     for key in ("rms_px", "max_px", "corners", "views", "coverage_pct", "centre_std_mm", "angle_std_deg"):
         assert c0[key] is not None and c0[key] >= 0
     assert 0 < c0["coverage_pct"] <= 100 and c0["views"] <= 10
+    t = report["timings_s"]
+    assert {"detect_s", "initialise_s", "adjust_s", "covariance_s", "write_s", "command_s", "cpu_s"} <= set(t)
+    assert t["command_s"] >= t["detect_s"] + t["adjust_s"]
     assert (rep / "corners_all.png").stat().st_size > 1000
     assert (rep / "corners_cam03.png").is_file()
 
@@ -143,6 +153,21 @@ def test_a_folder_without_the_target(tmp_path, capsys):
                      must="no target in the images", out=out)
 
 
+def test_captures_of_parts_instead_of_the_target(tmp_path, capsys):
+    """A folder of ordinary captures (a part, no target): one line, nothing written."""
+    from inspector_drivers.replay.folder import save_capture
+    from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
+
+    p = SimParams(part="cube30", cameras=3, width=160, height=160, mm_per_px=0.3, supersample=1)
+    rig = sim_rig(p)
+    caps = tmp_path / "parts"
+    for i in range(2):
+        save_capture(simulate(p, i, rig), caps / f"part-{i}")
+    out = tmp_path / "rig.json"
+    _one_line_exit_2(capsys, ["calibrate", str(CUBE), "--captures", str(caps), "--out", str(out)],
+                     must="no target in the images", out=out)
+
+
 def test_a_camera_that_never_sees_the_target(few_captures, tmp_path, capsys):
     import cv2
 
@@ -160,7 +185,12 @@ def test_a_camera_that_never_sees_the_target(few_captures, tmp_path, capsys):
     (("DICT_5X5_1000", "DICT_4X4_1000"), "the target description does not match the images"),
     (("squares = [5, 5]", "squares = [4, 4]"), "the target description does not match the images"),
     (("squares = [5, 5]", "squares = [6, 6]"), "the target description does not match the images"),
+    (("DICT_5X5_1000", "DICT_6X6_250"), "the target description does not match the images"),
     (("marker_mm = 5.0", "marker_mm = 5.0\nmarkers = 3"), "unknown key target.markers"),
+    (("square_mm = 7.0", "squares_mm = 7.0"), "unknown key target.squares_mm"),
+    (("side_mm = 40.0", "side_mm = 40.0\n[board]\nx = 1"), "unknown table or key 'board' (expected only [target])"),
+    (("DICT_5X5_1000", "DICT_5X5_999"), "target.dictionary 'DICT_5X5_999' is not an OpenCV predefined dictionary"),
+    (("kind = \"charuco_cube\"", "kind = \"cube\""), "target.kind must be one of"),
 ])
 def test_a_target_description_that_does_not_match(few_captures, tmp_path, capsys, change, must):
     text = CUBE.read_text().replace(*change)
@@ -204,3 +234,13 @@ def test_a_camera_seen_too_little_is_named_with_what_to_do(captures, tmp_path, c
     cam03 = next(c for c in report["cameras"] if c["name"] == "cam03")
     others = [c["centre_std_mm"] for c in report["cameras"] if c["name"] != "cam03"]
     assert cam03["views"] == 3 and cam03["centre_std_mm"] > max(others)
+
+
+def test_capture_help_says_how_to_take_calibration_captures(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["capture", "--help"])
+    assert e.value.code == 0
+    text = capsys.readouterr().out
+    assert "calibration captures" in text and "one capture folder" in text and "per pose of the calibration target" in text
+    assert "inspector calibrate TARGET.toml --captures calib/" in text
+    assert "inspector calibrate --background --captures empty/ --out cell/" in text
