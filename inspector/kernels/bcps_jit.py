@@ -24,10 +24,15 @@ import math
 import numba
 import numpy as np
 
-from inspector.kernels.hull_jit import map_value
+from inspector.kernels.hull_jit import map_value  # inlined into the kernels below
 from inspector.kernels.meshdist import signed_at
 
 numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]  # set at run time
+
+# Numba's on-disk cache of this module's kernels is keyed on this file alone, not on
+# hull_jit's: a change to map_value (issue 26: the maps stored cropped, CameraStack.sizes
+# of 7 columns) must come with a change to this file, or a stale cache would inline the old one.
+MAP_LAYOUT = 2  # CameraStack.sizes layout this module was compiled against
 
 __all__ = ["select_rays", "MAP_LIPSCHITZ"]
 

@@ -64,11 +64,14 @@ def test_benchmark_one_inspection(benchmark, default_recipe, small_capture, tmp_
 def test_run_tiny(tmp_path, capsys):
     """The whole command, simulating a small capture; every figure in the JSON."""
     out = tmp_path / "bench.json"
-    rc = bench.run(_args("--runs", "1", "--cameras", "8", "--size", "256", "--mm-per-px", "0.4", "--carve-voxel", "0.5",
+    rc = bench.run(_args("--runs", "1", "--cameras", "8", "--size", "256x224", "--mm-per-px", "0.4", "--carve-voxel", "0.5",
                          "--carve-runs", "1", "--open3d-voxel", "2.0", "--no-first-run", "--json", str(out)))
     assert rc in (0, 1)  # targets are for the full capture, not this one
     doc = json.loads(out.read_text())
     assert set(doc) >= {"config", "machine", "compile", "startup", "cycles", "carving", "targets", "verdicts"}
+    cap = doc["config"]["capture"]
+    assert (cap["width"], cap["height"], cap["cameras"]) == (256, 224, 8)  # non-square, as asked
+    assert doc["targets"]["cycle"]["target_s"] == pytest.approx(bench.cycle_target_s(256, 224, 8))
     # a new process inspected the capture and printed its verdict; the first run was not asked for
     cold = doc["startup"]["cold_start"]
     assert cold["exit"] in (0, 1) and cold["verdict"] in ("pass", "fail") and 0 < cold["verdict_s"] <= cold["exit_s"]
@@ -151,3 +154,64 @@ def test_cold_start_times_the_verdict_line_and_a_command_error_has_none(tmp_path
     assert r["verdict"] == "error" and 0 < r["verdict_s"] <= r["exit_s"] and r["exit"] != 0
     r = cold_start(tmp_path / "nope.toml", tmp_path / "missing", tmp_path / "out2")
     assert r["verdict_s"] is None and r["verdict"] is None and r["exit"] == 2 and r["exit_s"] > 0
+
+
+@pytest.mark.parametrize("text, expected", [("1024", (1024, 1024)), ("2448x2048", (2448, 2048)), ("640X480", (640, 480))])
+def test_size_accepts_square_and_non_square(text, expected):
+    assert bench.parse_size(text) == expected
+    args = _args("--size", text)
+    assert bench.image_size(args) == expected
+    assert args.size == expected[0]  # the width, an int, as the other benches read it
+
+
+def test_size_default_is_square():
+    assert bench.image_size(_args()) == (1024, 1024)
+
+
+@pytest.mark.parametrize("text", ["", "x", "12x", "3x4x5", "-5", "1.5x2", "abc"])
+def test_size_refused_in_one_line(text, capsys):
+    with pytest.raises(SystemExit) as e:
+        _args("--size", text)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--size" in err and "WxH" in err
+
+
+def test_too_small_non_square_size_is_refused():
+    with pytest.raises(RecipeError, match="--size"):
+        bench.run(_args("--size", "640x8", "--runs", "1"))
+
+
+def test_targets_follow_the_image_size_and_camera_count():
+    """Issue 26: 0.5 s up to 1 MP, 1.0 s up to 5 MP (16 cameras), scaled with the camera
+    count; 1.5 and 2.5 GB of peak memory."""
+    assert bench.cycle_target_s(1024, 1024) == pytest.approx(0.5)
+    assert bench.cycle_target_s(512, 512) == pytest.approx(0.5)
+    assert bench.cycle_target_s(2448, 2048) == pytest.approx(1.0)
+    assert bench.cycle_target_s(2448, 2048, 32) == pytest.approx(2.0)
+    assert bench.cycle_target_s(1024, 1024, 8) == pytest.approx(0.25)
+    assert bench.cycle_target_s(4096, 4096) is None
+    assert bench.memory_target_mb(1024, 1024) == pytest.approx(1500.0)
+    assert bench.memory_target_mb(2448, 2048) == pytest.approx(2500.0)
+    assert bench.memory_target_mb(4096, 4096) is None
+    cycles = {"stages": {"cycle": {"median": 0.8, "min": 0.7, "max": 0.9}}, "memory": {"peak_mb": 2000.0},
+              "loadavg": {"min": 1.0, "median": 1.5, "max": 2.0}}
+    small = bench._targets(cycles, None, size=(1024, 1024), cameras=16)
+    assert small["cycle"]["met"] is False and small["memory"]["met"] is False
+    big = bench._targets(cycles, None, size=(2448, 2048), cameras=16)
+    assert big["cycle"]["met"] is True and big["memory"]["met"] is True
+    assert big["cycle"]["loadavg"] == cycles["loadavg"]  # the load stands beside the figure
+    huge = bench._targets(cycles, None, size=(4096, 4096), cameras=16)
+    assert huge["cycle"]["met"] is None and huge["memory"]["met"] is None
+
+
+def test_cycles_record_load_and_cpu_per_run(default_recipe, small_capture, tmp_path):
+    pm, recipe, ref = default_recipe
+    c = bench.bench_cycles(recipe, ref, pm, small_capture, tmp_path, 2)
+    assert len(c["runs"]) == 2
+    for r in c["runs"]:
+        assert len(r["loadavg"]) == 2 and all(x is None or x >= 0 for x in r["loadavg"])
+        assert r["cpu_s"] > 0
+    assert set(c["stages"]["cycle_cpu"]) == {"median", "min", "max"}
+    if c["loadavg"] is not None:
+        assert c["loadavg"]["min"] <= c["loadavg"]["median"] <= c["loadavg"]["max"]

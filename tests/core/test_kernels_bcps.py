@@ -256,3 +256,39 @@ def test_ray_min_distance_is_the_silhouette_residual_of_a_sphere():
         bk.ray_min_distance(origin, dirs, t0[:2], t1, sd)
     with pytest.raises(ValueError, match="step_mm"):
         bk.ray_min_distance(origin, dirs, t0, t1, sd, step_mm=0.0)
+
+
+def test_cropped_maps_hold_the_whole_maps_numbers(views):
+    """Issue 26: the compiled kernels' inside-maps are stored cropped to each silhouette's
+    neighbourhood; put back in a whole image they are exactly the whole maps (a silhouette
+    in the middle, one touching the border, an empty one), and the kernel reads the same
+    violations as from whole maps (the padded layout of before)."""
+    from inspector.kernels.hull_jit import _with_depth, _with_depth_crop, stack_views, violation
+    from inspector.kernels.silhouette import inside_map
+
+    soft = np.zeros((120, 160), np.float32)
+    soft[0:30, 40:90] = 1.0  # touches the top border
+    soft[30, 40:90] = 0.4
+    empty = np.zeros((50, 60), np.float32)
+    insides = [v.inside for v in views] + [inside_map(soft), inside_map(empty)]
+    for inside in insides:
+        whole = np.empty(inside.shape, np.float32)
+        _with_depth(inside, whole)
+        crop, y0, x0, fill = _with_depth_crop(inside)
+        back = np.full(inside.shape, -float(fill), np.float32)
+        back[y0:y0 + crop.shape[0], x0:x0 + crop.shape[1]] = crop
+        np.testing.assert_array_equal(back, whole)
+    crop, *_ = _with_depth_crop(views[0].inside)
+    assert crop.size < 0.2 * views[0].inside.size  # the sphere's neighbourhood, not the image
+    stack = stack_views(views)
+    assert stack.maps.shape[1] * stack.maps.shape[2] < 0.2 * views[0].inside.size
+    rng = np.random.default_rng(3)
+    X = rng.uniform(-14, 14, size=(4000, 3))
+    # the whole maps, as the kernel read them before (one crop = the whole image)
+    H, W = views[0].inside.shape
+    whole = stack_views(views)
+    whole.maps = np.empty((len(views), H, W), np.float32)
+    for i, v in enumerate(views):
+        _with_depth(v.inside, whole.maps[i])
+        whole.sizes[i] = (W, H, 0, 0, W, H, 0)
+    np.testing.assert_array_equal(violation(X, stack, skip=2), violation(X, whole, skip=2))

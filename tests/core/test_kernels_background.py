@@ -1,0 +1,57 @@
+"""Background kernels at real image sizes (issue 26): the block statistics of a 5 MP image."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from inspector.kernels import background as bk
+
+
+def _per_block(small: np.ndarray, ys: np.ndarray, xs: np.ndarray, qs: tuple[float, float]):
+    """The reference: one numpy.quantile per block."""
+    vals = np.empty((len(ys) - 1, len(xs) - 1), np.float32)
+    far = np.empty_like(vals)
+    for i in range(len(ys) - 1):
+        for j in range(len(xs) - 1):
+            vals[i, j], far[i, j] = np.quantile(small[ys[i]:ys[i + 1], xs[j]:xs[j + 1]], list(qs))
+    return vals, far
+
+
+@pytest.mark.parametrize("shape", [(256, 306), (257, 311), (130, 97), (33, 40), (5, 9)])
+def test_block_quantiles_equal_one_quantile_per_block(shape):
+    """Blocks of unequal sizes (a 2448 x 2048 image reduced 8x: 306 x 256 px in 76 x 64
+    blocks) give exactly the numbers of one numpy.quantile per block."""
+    rng = np.random.default_rng(7)
+    small = (rng.random(shape) * 255).astype(np.float32)
+    h, w = shape
+    bh, bw = max(h // bk.BLOCK, 1), max(w // bk.BLOCK, 1)
+    ys = np.linspace(0, h, bh + 1).astype(int)
+    xs = np.linspace(0, w, bw + 1).astype(int)
+    assert len(set(np.diff(ys))) > 1 or len(set(np.diff(xs))) > 1 or shape == (5, 9)
+    vals = np.empty((bh, bw), np.float32)
+    far = np.empty_like(vals)
+    bk._block_quantiles(small, ys, xs, (0.75, 0.05), vals, far)
+    ref_vals, ref_far = _per_block(small, ys, xs, (0.75, 0.05))
+    np.testing.assert_array_equal(vals, ref_vals)
+    np.testing.assert_array_equal(far, ref_far)
+
+
+def test_background_level_of_a_5mp_image_finds_the_vignetting():
+    """A dark square on a vignetted background of 2448 x 2048 px: the modelled level follows
+    the background (within 2 grey levels away from the part) and its range is the vignetting's."""
+    h, w = 2048, 2448
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    r2 = ((x - w / 2) / (w / 2)) ** 2 + ((y - h / 2) / (h / 2)) ** 2
+    field = 200.0 * (1.0 - 0.15 * r2)
+    img = field.copy()
+    img[800:1200, 1000:1400] = 40.0
+    rng = np.random.default_rng(0)
+    grey = np.clip(img + rng.normal(0, 2.0, img.shape), 0, 255).astype(np.uint8)
+    lv = bk.background_level(grey, "dark-object")
+    away = np.ones((h, w), bool)
+    away[700:1300, 900:1500] = False
+    err = np.abs(lv.level - field)[away]
+    assert np.percentile(err, 99) < 2.0
+    assert lv.high == pytest.approx(float(field.max()), abs=2.0)
+    assert lv.low == pytest.approx(float(field[16::32, 16::32].min()), abs=4.0)
