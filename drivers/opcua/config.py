@@ -104,9 +104,10 @@ def load_settings(path: str | os.PathLike[str] | None) -> ServerSettings:
         raise RecipeError(f"{label}: not a UTF-8 text file") from None
     except tomllib.TOMLDecodeError as e:
         raise RecipeError(f"{label}: not valid TOML ({e})") from None
-    extra = sorted(set(data) - {"server"})
+    # One cell.toml holds the server's, the GUI's and the shifts' settings; each reader checks its own table.
+    extra = sorted(set(data) - {"server", "gui", "shifts"})
     if extra:
-        raise RecipeError(f"{label}: unknown table {extra[0]!r} (expected server)")
+        raise RecipeError(f"{label}: unknown table {extra[0]!r} (expected server, gui or shifts)")
     table = data.get("server", {})
     if not isinstance(table, dict):
         raise RecipeError(f"{label}: server: expected a table")

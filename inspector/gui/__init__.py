@@ -8,6 +8,8 @@ imports nothing heavy: :mod:`inspector.gui.app` does, when the GUI starts.
 Modules: ``viewmodel`` (Qt-free: what the screen shows, built from an inspection or a
 result folder), ``worker`` (the session in a worker thread, events as queued signals),
 ``widgets`` (banner, defect table, camera strip, history strip), ``view3d`` (the 3D view),
-``editor`` (the engineer's recipe form), ``window`` (the operator screen), ``app`` (the
-command).
+``editor`` (the engineer's recipe form), ``window`` (the operator screen: fitted to its
+screen, kiosk mode, the shift panel), ``app`` (the command, ``--kiosk``, ``--lang``,
+``--config``), ``i18n`` (the German and Spanish translations, Qt's ``.ts``/``.qm`` files and
+``python -m inspector.gui.i18n.build``).
 """

@@ -48,15 +48,15 @@ class LoginDialog(QDialog):
 
     def __init__(self, parent: QWidget | None = None, problem: str | None = None) -> None:
         super().__init__(parent)
-        self.setWindowTitle("Engineer login")
+        self.setWindowTitle(self.tr("Engineer login"))
         self.who = QLineEdit()
         self.who.setObjectName("who")
         self.password = QLineEdit()
         self.password.setObjectName("password")
         self.password.setEchoMode(QLineEdit.EchoMode.Password)
         form = QFormLayout()
-        form.addRow("Name", self.who)
-        form.addRow("Password", self.password)
+        form.addRow(self.tr("Name"), self.who)
+        form.addRow(self.tr("Password"), self.password)
         self.message = QLabel(problem or "")
         self.message.setWordWrap(True)
         self.message.setStyleSheet("color: #b3141b; font-weight: bold;")
@@ -96,7 +96,7 @@ class RecipeEditor(QDialog):
         self.save_dir = Path(save_dir)
         self.form: RecipeForm = form_for(recipe, pm)
         self.saved: Path | None = None
-        self.setWindowTitle(f"Recipe editor: {self.form.name} ({Path(recipe).name})")
+        self.setWindowTitle(self.tr("Recipe editor: {name} ({file})").format(name=self.form.name, file=Path(recipe).name))
         self.resize(900, 760)
         self.editors: dict[tuple[str, str], _Editor] = {}
         body = QWidget()
@@ -108,8 +108,9 @@ class RecipeEditor(QDialog):
             for f in sec.fields:
                 w = self._editor(f)
                 w.setObjectName(f"{sec.key}.{f.name}")
-                w.setToolTip(f"{f.doc}\ntype {f.type}; default {f.default!r}"
-                             + (f"; min {f.min}" if f.min is not None else "") + (f"; max {f.max}" if f.max is not None else ""))
+                w.setToolTip(f.doc + "\n" + self.tr("type {type}; default {default}").format(type=f.type, default=repr(f.default))
+                             + (self.tr("; min {min}").format(min=f.min) if f.min is not None else "")
+                             + (self.tr("; max {max}").format(max=f.max) if f.max is not None else ""))
                 self.editors[(sec.key, f.name)] = w
                 label = QLabel(f.name + ("" if not f.explicit else " \u25cf"))
                 label.setToolTip(f.doc)
@@ -121,17 +122,17 @@ class RecipeEditor(QDialog):
         scroll.setWidget(body)
         self.name = QLineEdit(f"{self.form.name}-edited")
         self.name.setObjectName("recipe-name")
-        self.status = QLabel("Values marked \u25cf are set by the recipe; the others are defaults.")
+        self.status = QLabel(self.tr("Values marked \u25cf are set by the recipe; the others are defaults."))
         self.status.setWordWrap(True)
-        check = QPushButton("Check")
+        check = QPushButton(self.tr("Check"))
         check.clicked.connect(self.check)
-        save = QPushButton("Save as new recipe")
+        save = QPushButton(self.tr("Save as new recipe"))
         save.setObjectName("save")
         save.clicked.connect(self.save)
-        cancel = QPushButton("Cancel")
+        cancel = QPushButton(self.tr("Cancel"))
         cancel.clicked.connect(self.reject)
         row = QHBoxLayout()
-        row.addWidget(QLabel("New recipe name"))
+        row.addWidget(QLabel(self.tr("New recipe name")))
         row.addWidget(self.name, 1)
         row.addWidget(check)
         row.addWidget(save)
@@ -200,7 +201,7 @@ class RecipeEditor(QDialog):
                 try:
                     v = self._read(sec.key, f)
                 except (ValueError, json.JSONDecodeError) as e:
-                    raise ValueError(f"{sec.key}.{f.name}: cannot read {type(e).__name__}: {e}") from None
+                    raise ValueError(self.tr("{key}: cannot read {error}").format(key=f"{sec.key}.{f.name}", error=f"{type(e).__name__}: {e}")) from None
                 if v != f.value:
                     form = form.with_value(sec.key, f.name, v) if v is not None else form.with_default(sec.key, f.name)
         return form
@@ -211,7 +212,7 @@ class RecipeEditor(QDialog):
             problem = validate(self.edited(), self.pm, path=self.save_dir / "check.toml", name=self.name.text().strip() or None)
         except ValueError as e:
             problem = str(e)
-        self.status.setText(problem or "Valid: `inspector recipe check` accepts it.")
+        self.status.setText(problem or self.tr("Valid: `inspector recipe check` accepts it."))
         self.status.setStyleSheet("color: #b3141b; font-weight: bold;" if problem else "color: #1b7f3b; font-weight: bold;")
         return problem
 

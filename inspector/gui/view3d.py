@@ -25,11 +25,13 @@ from pyvistaqt import QtInteractor
 from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QWidget
 
+from inspector.gui.i18n import number
 from inspector.gui.viewmodel import SCALED, SPAN, DefectRow, ResultView, normalised
+from inspector.gui.widgets import verdict_word
 
 __all__ = ["DeviationView", "deviation_colormap", "normalised", "SPAN"]
 
-BAR = "deviation"
+BAR = "deviation"  # the colour bar's title in English (DeviationView._bar: in the GUI's language)
 #: Points are drawn as flat squares of this many pixels.
 POINT_PX = 4
 #: Names of the actors a defect selection adds (removed when a new result is shown).
@@ -104,6 +106,7 @@ class DeviationView(QWidget):
         from PySide6.QtWidgets import QVBoxLayout
 
         super().__init__(parent)
+        self._bar = self.tr("deviation")  # the colour bar's title, also pyvista's key of the bar
         # No periodic re-render (pyvistaqt renders 5 times a second by default: 80 % of a core
         # with software OpenGL on an idle screen, measured); the view renders after each change
         # and on interaction. No multisampling (see the module's doc).
@@ -163,7 +166,8 @@ class DeviationView(QWidget):
             self._set_reference(view.reference)
             self._set_cloud(view)
             self._set_defects(view.defects)
-            self._caption.set_text("upper_left", f"{view.verdict.upper()}  {view.capture}  ({len(view.points)} points)")
+            self._caption.set_text("upper_left", self.tr("{verdict}  {capture}  ({n} points)").format(
+                verdict=verdict_word(view.verdict), capture=view.capture, n=len(view.points)))
             if len(view.points):
                 self.reset_camera(render=False)
         finally:
@@ -210,8 +214,8 @@ class DeviationView(QWidget):
         if not len(view.points):
             if self._cloud_actor is not None:
                 self._cloud_actor.SetVisibility(False)
-                if BAR in p.scalar_bars:
-                    p.scalar_bars[BAR].SetVisibility(False)
+                if self._bar in p.scalar_bars:
+                    p.scalar_bars[self._bar].SetVisibility(False)
             return
         scaled = view.prepared.get(SCALED)
         if scaled is None or len(scaled) != len(view.points):
@@ -221,14 +225,14 @@ class DeviationView(QWidget):
         # dtype (its own __setitem__ passes ArrayLike[Any]); float32 here, half the memory.
         cloud.point_data.set_array(cast(Any, np.asarray(scaled, np.float32)), SCALED, deep_copy=False)
         lo, hi = view.tolerance
-        notes = {-SPAN: f"{SPAN * lo:+.2f} mm", -1.0: f"{lo:+.2f} mm", 0.0: "0 mm", 1.0: f"{hi:+.2f} mm",
-                 SPAN: f"{SPAN * hi:+.2f} mm"}
+        notes = {-SPAN: f"{number(SPAN * lo, 2, sign=True)} mm", -1.0: f"{number(lo, 2, sign=True)} mm", 0.0: "0 mm",
+                 1.0: f"{number(hi, 2, sign=True)} mm", SPAN: f"{number(SPAN * hi, 2, sign=True)} mm"}
         if self._cloud is None:
             self._cloud = cloud
             self._cloud_actor = p.add_mesh(
                 cloud, name="bcps", scalars=SCALED, cmap=self._cmap, clim=(-SPAN, SPAN), point_size=POINT_PX,
                 render_points_as_spheres=False, reset_camera=False, show_scalar_bar=True, annotations=notes,
-                scalar_bar_args=dict(title=BAR, n_labels=0, vertical=True, position_x=0.86, position_y=0.12,
+                scalar_bar_args=dict(title=self._bar, n_labels=0, vertical=True, position_x=0.86, position_y=0.12,
                                      height=0.76, width=0.07, title_font_size=16, label_font_size=14, color="white"),
                 render=False)
         else:
@@ -238,8 +242,8 @@ class DeviationView(QWidget):
                 self._cloud_actor.mapper.lookup_table.annotations = notes
             self._cloud_actor.SetVisibility(True)
         self._bar_tolerance = view.tolerance
-        if BAR in p.scalar_bars:
-            p.scalar_bars[BAR].SetVisibility(True)
+        if self._bar in p.scalar_bars:
+            p.scalar_bars[self._bar].SetVisibility(True)
 
     def _set_defects(self, defects: tuple[DefectRow, ...]) -> None:
         p = self.plotter

@@ -8,6 +8,7 @@ CONTRACT files only). Widgets only draw it.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,7 +18,34 @@ import numpy as np
 from inspector.errors import InputError
 
 __all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text", "camera_thumbs",
-           "calibration_flags", "normalised", "point_arrays", "SPAN", "SCALED"]
+           "calibration_flags", "normalised", "point_arrays", "SPAN", "SCALED", "set_text", "translate", "number"]
+
+# -- words and numbers --------------------------------------------------------------------------
+# The texts of a view are marked with translate("ViewModel", ...), which Qt's lupdate collects
+# into the GUI's translation files; this module stays Qt-free: the GUI points the hooks at Qt's
+# translator and locale (inspector.gui.i18n.install). Headless: English, Python's number format.
+_translate: Callable[[str, str], str] = lambda context, text: text  # noqa: E731
+_number: Callable[..., str] = lambda value, decimals, *, sign=False: f"{value:{'+' if sign else ''}.{decimals}f}"  # noqa: E731
+
+
+def set_text(translate_: Callable[[str, str], str] | None, number_: Callable[..., str] | None) -> None:
+    """Translate this module's texts with ``translate_(context, text)`` and write numbers with
+    ``number_(value, decimals, sign=False)`` (None: English, Python's format)."""
+    global _translate, _number
+    _translate = translate_ if translate_ is not None else (lambda context, text: text)
+    _number = number_ if number_ is not None else (lambda value, decimals, *, sign=False:
+                                                   f"{value:{'+' if sign else ''}.{decimals}f}")
+
+
+def translate(context: str, text: str) -> str:
+    """``text`` in the GUI's language (see :func:`set_text`)."""
+    return _translate(context, text)
+
+
+def number(value: float, decimals: int, *, sign: bool = False) -> str:
+    """``value`` with ``decimals`` decimals in the GUI's locale (``sign``: ``+`` before a positive one)."""
+    return _number(float(value), decimals, sign=sign)
+
 
 #: The colour scale spans this many tolerance widths on each side.
 SPAN = 3.0
@@ -140,9 +168,15 @@ def calibration_flags(stats: Any) -> dict[str, str]:
     out = {}
     for name in cal.get("flagged") or ():
         off = (cams.get(name) or {}).get("off_px")
-        by = f" by {off:.2f} px" if isinstance(off, (int, float)) else ""
-        out[str(name)] = (f"calibration: disagrees with the other cameras{by} "
-                          f"(threshold {cal.get('threshold_px', '?')} px): check its mounting or recalibrate")
+        limit = cal.get("threshold_px")
+        limit_text = number(limit, 2) if isinstance(limit, (int, float)) else "?"
+        if isinstance(off, (int, float)):
+            text = translate("ViewModel", "calibration: disagrees with the other cameras by {off} px (threshold {limit} px): "
+                                          "check its mounting or recalibrate").format(off=number(off, 2), limit=limit_text)
+        else:
+            text = translate("ViewModel", "calibration: disagrees with the other cameras (threshold {limit} px): "
+                                          "check its mounting or recalibrate").format(limit=limit_text)
+        out[str(name)] = text
     return out
 
 
@@ -185,9 +219,16 @@ def reason_text(verdict: str, defects: list[dict[str, Any]] | tuple[DefectRow, .
         d if isinstance(d, dict) else {"kind": d.kind, "region": d.region, "worst_mm": d.worst_mm} for d in defects]
     worst = max(rows, key=lambda d: abs(d["worst_mm"]))
     limit = tolerance[0] if worst["kind"] == "missing" else tolerance[1]
-    what = "missing material" if worst["kind"] == "missing" else "excess material"
-    more = f" (+{len(rows) - 1} more defect{'s' if len(rows) > 2 else ''})" if len(rows) > 1 else ""
-    return f"{what} in region '{worst['region']}': {worst['worst_mm']:+.3f} mm, limit {limit:+.3f} mm{more}"
+    text = (translate("ViewModel", "missing material in region '{region}': {worst} mm, limit {limit} mm")
+            if worst["kind"] == "missing" else
+            translate("ViewModel", "excess material in region '{region}': {worst} mm, limit {limit} mm"))
+    text = text.format(region=worst["region"], worst=number(worst["worst_mm"], 3, sign=True),
+                       limit=number(limit, 3, sign=True))
+    if len(rows) == 2:
+        text += translate("ViewModel", " (+1 more defect)")
+    elif len(rows) > 2:
+        text += translate("ViewModel", " (+{n} more defects)").format(n=len(rows) - 1)
+    return text
 
 
 def _defect_cameras(d: dict[str, Any], points: np.ndarray, deviation: np.ndarray, camera: np.ndarray,
@@ -278,10 +319,11 @@ def camera_thumbs(ctx: Any, keep_full: bool = True) -> tuple[CameraThumb, ...]:
         small, scale, origin, full = _thumb(capture.images[n], contour)
         flags = []
         if s is not None and s.touches_border:
-            flags.append("silhouette touches the image border")
+            flags.append(translate("ViewModel", "silhouette touches the image border"))
         if ctx.bcps is not None and unmatched[i] > median + DISAGREE_MARGIN:
-            flags.append(f"silhouette disagrees with the others: {100 * unmatched[i]:.0f} % of its contour rays "
-                         f"inconsistent (median {100 * median:.0f} %)")
+            flags.append(translate("ViewModel", "silhouette disagrees with the others: {share} % of its contour rays "
+                                                "inconsistent (median {median} %)").format(
+                share=number(100 * unmatched[i], 0), median=number(100 * median, 0)))
         if n in calibration:
             flags.append(calibration[n])
         out.append(CameraThumb(n, small, scale, origin, full if keep_full else None, contour,

@@ -17,7 +17,20 @@ import dataclasses
 import threading
 
 import numpy as np
-from PySide6.QtCore import QEvent, QPointF, QRect, QRectF, QSize, Qt, QTimer, Signal
+from PySide6.QtCore import (
+    QCoreApplication,
+    QDate,
+    QEvent,
+    QLocale,
+    QPointF,
+    QRect,
+    QRectF,
+    QSize,
+    Qt,
+    QTime,
+    QTimer,
+    Signal,
+)
 from PySide6.QtGui import QColor, QFont, QHelpEvent, QImage, QKeySequence, QPainter, QPainterPath, QPen, QPixmap, QShortcut
 from PySide6.QtWidgets import (
     QAbstractItemView,
@@ -40,14 +53,24 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from inspector.gui.i18n import number, percent
 from inspector.gui.viewmodel import CameraThumb, ResultView
 
-__all__ = ["VERDICT_STYLE", "VerdictBanner", "DefectTable", "CameraStrip", "CameraDialog", "HistoryStrip",
-           "tile_image", "history_chart", "prepare_view", "PICTURES", "HISTORY"]
+__all__ = ["VERDICT_STYLE", "VerdictBanner", "DefectTable", "CameraStrip", "CameraDialog", "HistoryStrip", "ShiftPanel",
+           "tile_image", "history_chart", "prepare_view", "verdict_word", "PICTURES", "HISTORY", "SHIFT"]
+
+
+
+def QT_TRANSLATE_NOOP(context: str, text: str) -> str:  # noqa: N802 - the name lupdate collects texts from
+    """Mark ``text`` for translation in ``context`` (translated where it is shown); typed,
+    unlike PySide6's own (which returns ``object``)."""
+    return text
+
 
 #: Keys of :attr:`ResultView.prepared` filled by :func:`prepare_view`.
 PICTURES = "camera pictures"
 HISTORY = "history"
+SHIFT = "shift"
 #: History rows the strip reads (chips show the last ``HistoryStrip.CHIPS`` of them).
 HISTORY_ROWS = 50
 #: matplotlib's figures are not meant to be drawn by two threads at once.
@@ -56,15 +79,21 @@ _MPL_LOCK = threading.Lock()
 _CHART: dict[str, Any] = {}
 
 #: Verdict -> (word, icon glyph, background). The word and the glyph say it without colour.
+#: The words are English sources: :func:`verdict_word` gives them in the GUI's language.
 VERDICT_STYLE: dict[str, tuple[str, str, str]] = {
-    "pass": ("PASS", "\u2714", "#1b7f3b"),
-    "fail": ("FAIL", "\u2716", "#b3141b"),
-    "error": ("ERROR", "\u26a0", "#b86e00"),
-    "aborted": ("ABORTED", "\u25a0", "#5f6368"),
-    "busy": ("INSPECTING", "\u25f7", "#1557a0"),
-    "ready": ("READY", "\u25cb", "#37474f"),
-    "invalid": ("RECIPE INVALID", "\u26a0", "#6d4c41"),
+    "pass": (QT_TRANSLATE_NOOP("Verdict", "PASS"), "\u2714", "#1b7f3b"),
+    "fail": (QT_TRANSLATE_NOOP("Verdict", "FAIL"), "\u2716", "#b3141b"),
+    "error": (QT_TRANSLATE_NOOP("Verdict", "ERROR"), "\u26a0", "#b86e00"),
+    "aborted": (QT_TRANSLATE_NOOP("Verdict", "ABORTED"), "\u25a0", "#5f6368"),
+    "busy": (QT_TRANSLATE_NOOP("Verdict", "INSPECTING"), "\u25f7", "#1557a0"),
+    "ready": (QT_TRANSLATE_NOOP("Verdict", "READY"), "\u25cb", "#37474f"),
+    "invalid": (QT_TRANSLATE_NOOP("Verdict", "RECIPE INVALID"), "\u26a0", "#6d4c41"),
 }
+
+
+def verdict_word(state: str) -> str:
+    """The word of a verdict (or state) in the GUI's language (``FAIL``, ``NIO``, ``RECHAZADA`` ...)."""
+    return QCoreApplication.translate("Verdict", VERDICT_STYLE.get(state, VERDICT_STYLE["error"])[0])
 
 
 def _qimage(gray: np.ndarray) -> QImage:
@@ -125,6 +154,7 @@ def history_chart(rows: list[dict[str, Any]], size: tuple[int, int], ratio: floa
         ax = figure.add_subplot(111)
         if rows:
             draw_history(ax, rows, labels=False)
+            _translate_chart(ax, rows)
         ax.tick_params(labelsize=7)
         figure.subplots_adjust(left=0.08, right=0.99, top=0.85, bottom=0.12)
         canvas.draw()
@@ -132,6 +162,28 @@ def history_chart(rows: list[dict[str, Any]], size: tuple[int, int], ratio: floa
         img = QImage(buf.data, buf.shape[1], buf.shape[0], buf.strides[0], QImage.Format.Format_RGBA8888).copy()
     img.setDevicePixelRatio(ratio)
     return img
+
+
+def _translate_chart(ax: Any, rows: list[dict[str, Any]]) -> None:
+    """The words of :func:`~inspector_plugins.history.draw_history`'s chart (its title and
+    legend, English) in the GUI's language, its numbers in the locale's format."""
+    from inspector_plugins.history import tally
+
+    n, share = tally(rows)
+    yld = QCoreApplication.translate("Widgets", "yield {share}").format(share=percent(share)) if share is not None \
+        else QCoreApplication.translate("Widgets", "no part judged")
+    ax.set_title(QCoreApplication.translate("Widgets", "{n} inspections \u00b7 pass {p} \u00b7 fail {f} \u00b7 error {e} \u00b7 {yld}").format(
+        n=len(rows), p=n["pass"], f=n["fail"], e=n["error"], yld=yld), fontsize=9)
+    legend = ax.get_legend()
+    if legend is not None:
+        for t in legend.get_texts():
+            if t.get_text() == "tolerance":
+                t.set_text(QCoreApplication.translate("Widgets", "tolerance"))
+    sep = QLocale().decimalPoint()
+    if sep != ".":
+        from matplotlib.ticker import FuncFormatter
+
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}".replace(".", sep)))
 
 
 def read_rows(outdir: Path | None) -> list[dict[str, Any]]:
@@ -147,16 +199,35 @@ def read_rows(outdir: Path | None) -> list[dict[str, Any]]:
         return []
 
 
-def prepare_view(view: ResultView, outdir: Path | None, chart: tuple[tuple[int, int], float] | None) -> ResultView:
+def prepare_view(view: ResultView, outdir: Path | None, chart: tuple[tuple[int, int], float] | None,
+                 shifts: Any = None) -> ResultView:
     """``view`` with what its drawing needs made ahead, in the calling (worker) thread: the
     camera pictures (:data:`PICTURES`) and, with ``chart`` (size and device-pixel ratio of
-    the history chart), the history rows of ``outdir`` and their chart (:data:`HISTORY`)."""
+    the history chart), the history rows of ``outdir`` and their chart (:data:`HISTORY`)
+    and, with ``shifts`` (:class:`~inspector.shift.ShiftSettings`), the current shift's
+    counters (:data:`SHIFT`)."""
     prepared = dict(view.prepared)
     prepared[PICTURES] = {t.name: tile_image(t) for t in view.cameras}
     if chart is not None:
         rows = read_rows(outdir)
         prepared[HISTORY] = (rows, history_chart(rows, *chart))
+        if shifts is not None:
+            prepared[SHIFT] = read_shift(outdir, shifts)
     return dataclasses.replace(view, prepared=prepared)
+
+
+def read_shift(outdir: Path | None, settings: Any) -> Any:
+    """The counters of the current shift in ``outdir``'s history (:mod:`inspector.shift`;
+    None: no history yet, or it cannot be read); safe in any thread."""
+    from inspector.errors import InputError
+    from inspector.shift import shift_counters
+
+    if outdir is None:
+        return None
+    try:
+        return shift_counters(outdir, settings)[-1]
+    except InputError:
+        return None
 
 
 class VerdictBanner(QFrame):
@@ -171,6 +242,8 @@ class VerdictBanner(QFrame):
         self.detail = QLabel()
         self.reason = QLabel()
         self.reason.setWordWrap(True)
+        # Wrapped, not wider than the screen: a long part id or path must not widen the window.
+        self.detail.setWordWrap(True)
         # Sizes in the style sheet: a window's style sheet would override set fonts.
         self.icon.setObjectName("verdictIcon")
         self.word.setObjectName("verdictWord")
@@ -187,7 +260,7 @@ class VerdictBanner(QFrame):
         self.state = ""
         self.compact = False
         self._lay = lay
-        self.set_state("ready", "Press INSPECT (Space) to inspect the next part.")
+        self.set_state("ready", self.tr("Press INSPECT (Space) to inspect the next part."))
 
     def set_compact(self, compact: bool) -> None:
         """Smaller type for small screens (1366x768): the banner must leave room for the part."""
@@ -198,7 +271,8 @@ class VerdictBanner(QFrame):
             self._style()
 
     def set_state(self, state: str, detail: str = "", reason: str = "") -> None:
-        word, glyph, bg = VERDICT_STYLE[state]
+        _, glyph, bg = VERDICT_STYLE[state]
+        word = verdict_word(state)
         self.state = state
         self.icon.setText(glyph)
         self.word.setText(word)
@@ -207,7 +281,7 @@ class VerdictBanner(QFrame):
         self.reason.setVisible(bool(reason))
         self._bg = bg
         self._style()
-        self.setAccessibleName(f"verdict {word}")
+        self.setAccessibleName(self.tr("verdict {word}").format(word=word))
 
     def _style(self) -> None:
         big, text, reason = (28, 13, 14) if self.compact else (40, 15, 17)
@@ -217,11 +291,14 @@ class VerdictBanner(QFrame):
                            f" #verdictReason {{ font-size: {reason}pt; font-weight: bold; }}")
 
     def show_result(self, view: ResultView) -> None:
-        bits = [f"part {view.part_id}" if view.part_id else None, f"capture {view.capture}",
-                f"cycle {view.cycle_s:.2f} s" if view.cycle_s is not None else None]
+        bits = [self.tr("part {id}").format(id=view.part_id) if view.part_id else None,
+                self.tr("capture {name}").format(name=view.capture),
+                self.tr("cycle {s} s").format(s=number(view.cycle_s, 2)) if view.cycle_s is not None else None]
         if view.verdict in ("pass", "fail") and view.stats.get("deviation_mm"):
             d = view.stats["deviation_mm"]
-            bits.append(f"deviation {d['min']:+.3f} to {d['max']:+.3f} mm (limits {view.tolerance[0]:+.2f} / {view.tolerance[1]:+.2f})")
+            bits.append(self.tr("deviation {lo} to {hi} mm (limits {lower} / {upper})").format(
+                lo=number(d["min"], 3, sign=True), hi=number(d["max"], 3, sign=True),
+                lower=number(view.tolerance[0], 2, sign=True), upper=number(view.tolerance[1], 2, sign=True)))
         self.set_state(view.verdict if view.verdict in VERDICT_STYLE else "error",
                        "   \u00b7   ".join(b for b in bits if b), view.reason)
 
@@ -230,11 +307,13 @@ class DefectTable(QTableWidget):
     """One row per defect cluster; selecting a row emits ``defect_selected(row index)``."""
 
     defect_selected = Signal(int)
-    HEADERS = ("#", "kind", "region", "points", "worst mm", "extent mm", "cameras")
+    HEADERS = ("#", QT_TRANSLATE_NOOP("DefectTable", "kind"), QT_TRANSLATE_NOOP("DefectTable", "region"),
+               QT_TRANSLATE_NOOP("DefectTable", "points"), QT_TRANSLATE_NOOP("DefectTable", "worst mm"),
+               QT_TRANSLATE_NOOP("DefectTable", "extent mm"), QT_TRANSLATE_NOOP("DefectTable", "cameras"))
 
     def __init__(self, parent: QWidget | None = None) -> None:
         super().__init__(0, len(self.HEADERS), parent)
-        self.setHorizontalHeaderLabels(list(self.HEADERS))
+        self.setHorizontalHeaderLabels([self.tr(h) for h in self.HEADERS])
         self.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
         self.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
         self.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
@@ -242,7 +321,7 @@ class DefectTable(QTableWidget):
         self.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         self.horizontalHeader().setStretchLastSection(True)
         self.verticalHeader().setDefaultSectionSize(34)  # touch-size rows
-        self.setAccessibleName("defect table")
+        self.setAccessibleName(self.tr("defect table"))
         self.itemSelectionChanged.connect(self._selected)
 
     def show_result(self, view: ResultView) -> None:
@@ -250,9 +329,9 @@ class DefectTable(QTableWidget):
         self.clearSelection()
         self.setRowCount(len(view.defects))
         for r, d in enumerate(view.defects):
-            kind = "missing material" if d.kind == "missing" else "excess material"
-            values = (str(d.number), kind, d.region, str(d.n_points), f"{d.worst_mm:+.3f}",
-                      " x ".join(f"{e:.1f}" for e in d.extent), ", ".join(d.cameras) or "-")
+            kind = self.tr("missing material") if d.kind == "missing" else self.tr("excess material")
+            values = (str(d.number), kind, d.region, QLocale().toString(d.n_points), number(d.worst_mm, 3, sign=True),
+                      " \u00d7 ".join(number(e, 1) for e in d.extent), ", ".join(d.cameras) or "-")
             for c, v in enumerate(values):
                 item = QTableWidgetItem(v)
                 if c in (0, 3, 4):
@@ -287,8 +366,9 @@ class CameraTile(QLabel):
         self.thumb = thumb
         self.highlighted = False
         tip = thumb.name + ("\n" + "\n".join(thumb.flags) if thumb.flags else "")
-        self.setToolTip(tip + "\n(double-click or Enter: open large)")
-        self.setAccessibleName(f"camera {thumb.name}" + (" flagged" if thumb.flags else ""))
+        self.setToolTip(tip + "\n" + self.tr("(double-click or Enter: open large)"))
+        self.setAccessibleName((self.tr("camera {name} flagged") if thumb.flags else self.tr("camera {name}")).format(
+            name=thumb.name))
         self._pixmap = QPixmap.fromImage(picture if picture is not None else tile_image(thumb))
         self._scaled: QPixmap | None = None  # the pixmap at the tile's size, made on the first paint
         self.update()
@@ -348,7 +428,8 @@ class CameraStrip(QWidget):
         self.grid.setSpacing(4)
         self.grid.setContentsMargins(0, 0, 0, 0)
         self.tiles: dict[str, CameraTile] = {}
-        self.placeholder = QLabel("Camera images appear here after an inspection.")
+        self.placeholder = QLabel(self.tr("Camera images appear here after an inspection."))
+        self.placeholder.setWordWrap(True)
         self.placeholder.setAlignment(Qt.AlignmentFlag.AlignCenter)
         self.grid.addWidget(self.placeholder, 0, 0)
 
@@ -371,9 +452,9 @@ class CameraStrip(QWidget):
                 self.tiles[thumb.name].set_thumb(thumb, pictures.get(thumb.name))
         self.placeholder.setVisible(not view.cameras)
         if not view.cameras:
-            self.placeholder.setText("No camera images: this result was opened from its folder."
+            self.placeholder.setText(self.tr("No camera images: this result was opened from its folder.")
                                      if view.folder is not None and view.verdict != "aborted" else
-                                     "Camera images appear here after an inspection.")
+                                     self.tr("Camera images appear here after an inspection."))
 
     def highlight(self, names: tuple[str, ...] | list[str]) -> None:
         for n, tile in self.tiles.items():
@@ -392,7 +473,7 @@ class CameraDialog(QDialog):
 
     def __init__(self, thumb: CameraThumb, parent: QWidget | None = None) -> None:
         super().__init__(parent)
-        self.setWindowTitle(f"Camera {thumb.name}")
+        self.setWindowTitle(self.tr("Camera {name}").format(name=thumb.name))
         self.resize(900, 860)
         image = thumb.full if thumb.full is not None else thumb.image
         scale = 1.0 if thumb.full is not None else thumb.scale
@@ -407,13 +488,13 @@ class CameraDialog(QDialog):
         self.view = _ZoomView(scene)
         self.view.setRenderHint(QPainter.RenderHint.Antialiasing)
         self.view.setDragMode(QGraphicsView.DragMode.ScrollHandDrag)
-        info = QLabel("\n".join(thumb.flags) if thumb.flags else "silhouette consistent with the other cameras")
+        info = QLabel("\n".join(thumb.flags) if thumb.flags else self.tr("silhouette consistent with the other cameras"))
         info.setWordWrap(True)
         info.setStyleSheet("font-size: 14pt;" + (" color: #b86e00; font-weight: bold;" if thumb.flags else ""))
-        fit = QPushButton("Fit (0)")
+        fit = QPushButton(self.tr("Fit (0)"))
         fit.setMinimumHeight(44)
         fit.clicked.connect(self.fit)
-        close = QPushButton("Close (Esc)")
+        close = QPushButton(self.tr("Close (Esc)"))
         close.setMinimumHeight(44)
         close.clicked.connect(self.accept)
         row = QHBoxLayout()
@@ -448,15 +529,14 @@ class _Chips(QWidget):
         self.rows: list[dict[str, Any]] = []
         self.setMinimumHeight(self.SIZE.height())
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
-        self.setAccessibleName("history: last parts")
+        self.setAccessibleName(self.tr("history: last parts"))
 
     def sizeHint(self) -> QSize:  # noqa: N802 - Qt's name
         return QSize(self.count * (self.SIZE.width() + self.GAP), self.SIZE.height())
 
     def set_rows(self, rows: list[dict[str, Any]]) -> None:
         self.rows = list(rows[-self.count:])
-        self.setAccessibleDescription(", ".join(VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])[0]
-                                                for r in self.rows))
+        self.setAccessibleDescription(", ".join(verdict_word(r["verdict"]) for r in self.rows))
         self.update()
 
     def _rect(self, k: int) -> QRect:
@@ -483,9 +563,11 @@ class _Chips(QWidget):
         if event.type() == QEvent.Type.ToolTip and isinstance(event, QHelpEvent):
             for k, r in enumerate(self.rows):
                 if self._rect(k).contains(event.pos()):
-                    word = VERDICT_STYLE.get(r["verdict"], VERDICT_STYLE["error"])[0]
-                    QToolTip.showText(event.globalPos(), f"{r['capture']}: {word}" + (
-                        f", worst {r['worst_mm']:+.3f} mm" if r.get("worst_mm") is not None else ""), self)
+                    word = verdict_word(r["verdict"])
+                    text = (self.tr("{capture}: {word}, worst {worst} mm").format(
+                        capture=r["capture"], word=word, worst=number(r["worst_mm"], 3, sign=True))
+                        if r.get("worst_mm") is not None else f"{r['capture']}: {word}")
+                    QToolTip.showText(event.globalPos(), text, self)
                     return True
             QToolTip.hideText()
             event.ignore()
@@ -543,6 +625,91 @@ class _Chart(QWidget):
         p.end()
 
 
+#: The default shift names (:class:`inspector.shift.ShiftSettings`), marked for translation: a
+#: cell's own names are shown as they are.
+_SHIFT_NAMES = (QT_TRANSLATE_NOOP("Shift", "early"), QT_TRANSLATE_NOOP("Shift", "late"),
+                QT_TRANSLATE_NOOP("Shift", "night"))
+
+
+def _shift_name(name: str) -> str:
+    """A shift's name in the GUI's language when it is one of the default names."""
+    context = "Shift"  # not a literal: lupdate collects the names from _SHIFT_NAMES, not from here
+    return QCoreApplication.translate(context, name)
+
+
+def _elided(label: QLabel) -> None:
+    """A label that may be narrower than its text (its minimum width would otherwise be the
+    whole text's, and the window could not fit a small screen); the full text in its tooltip."""
+    label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+    label.setMinimumWidth(1)
+
+
+class ShiftPanel(QFrame):
+    """The current shift at a glance (:mod:`inspector.shift`): its name and hours, the parts
+    inspected, passed, failed and in error, the yield, the worst regions and the errors'
+    reasons grouped."""
+
+    TOP = 3
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setObjectName("shiftPanel")
+        self.setFrameShape(QFrame.Shape.StyledPanel)
+        self.title = QLabel()
+        self.title.setObjectName("shiftTitle")
+        self.counts = QLabel()
+        self.counts.setObjectName("shiftCounts")
+        self.regions = QLabel()
+        self.errors = QLabel()
+        for label in (self.title, self.counts, self.regions, self.errors):
+            _elided(label)
+        for label in (self.counts, self.regions, self.errors):
+            label.setWordWrap(True)
+        self.setStyleSheet("#shiftTitle { font-weight: bold; } #shiftCounts { font-weight: bold; }")
+        lay = QVBoxLayout(self)
+        lay.setContentsMargins(8, 2, 8, 2)
+        lay.setSpacing(0)
+        for label in (self.title, self.counts, self.regions, self.errors):
+            lay.addWidget(label)
+        lay.addStretch(1)
+        self.counters: Any = None
+        self.show_counters(None)
+
+    def show_counters(self, counters: Any) -> None:
+        """Show a :class:`~inspector.shift.ShiftCounters` (None: no history yet)."""
+        self.counters = counters
+        if counters is None:
+            self.title.setText(self.tr("Shift"))
+            self.counts.setText(self.tr("no inspection in this shift yet"))
+            self.regions.setText("")
+            self.errors.setText("")
+            return
+        s = counters.shift
+        fmt = QLocale.FormatType.ShortFormat
+        start = QLocale().toString(QTime(s.start.hour, s.start.minute), fmt)
+        end = QLocale().toString(QTime(s.end.hour, s.end.minute), fmt)
+        self.title.setText(self.tr("{name} shift, {date} {start} to {end}").format(
+            name=_shift_name(s.name), date=QLocale().toString(
+                QDate(s.start.year, s.start.month, s.start.day), fmt), start=start, end=end))
+        yld = percent(counters.yield_) if counters.yield_ is not None else "-"
+        self.counts.setText(self.tr("yield {share}: {n} inspected \u00b7 pass {p} \u00b7 fail {f} \u00b7 error {e}").format(
+            share=yld, n=counters.inspected, p=counters.passed, f=counters.failed, e=counters.errors))
+        if counters.regions:
+            parts = [self.tr("{region} {parts}\u00d7 ({worst} mm)").format(
+                region=g.region, parts=g.parts, worst=number(g.worst_mm, 3, sign=True)) for g in counters.regions[:self.TOP]]
+            self.regions.setText(self.tr("worst regions: {list}").format(list=", ".join(parts)))
+        else:
+            self.regions.setText(self.tr("no defect in this shift"))
+        if counters.error_groups:
+            groups = [f"{e.count}\u00d7 {e.reason}" for e in counters.error_groups[:self.TOP]]
+            self.errors.setText(self.tr("errors: {list}").format(list="; ".join(groups)))
+            self.errors.setToolTip("\n".join(f"{e.count}\u00d7 {e.example}" for e in counters.error_groups))
+        else:
+            self.errors.setText(self.tr("no error in this shift"))
+            self.errors.setToolTip("")
+        self.regions.setToolTip(self.regions.text())
+
+
 class HistoryStrip(QWidget):
     """The last parts as verdict chips (word and colour), the yield, and the trend chart of
     ``inspector history --plot`` (same rows, same drawing function, same limits).
@@ -559,8 +726,12 @@ class HistoryStrip(QWidget):
         self.canvas.setMaximumHeight(170)
         self.canvas.resized.connect(self._redraw)
         self.chips = _Chips(self.CHIPS)
-        self.yield_label = QLabel("no inspection yet")
+        self.yield_label = QLabel(self.tr("no inspection yet"))
         self.yield_label.setStyleSheet("font-size: 14pt; font-weight: bold;")
+        _elided(self.yield_label)
+        self.yield_label.setWordWrap(True)
+        self.chips.setMinimumWidth(self.chips.SIZE.width() * 6)
+        self.shift = ShiftPanel()
         left = QVBoxLayout()
         left.addWidget(self.yield_label)
         left.addWidget(self.chips)
@@ -568,6 +739,7 @@ class HistoryStrip(QWidget):
         lay = QHBoxLayout(self)
         lay.setContentsMargins(0, 0, 0, 0)
         lay.addLayout(left, 2)
+        lay.addWidget(self.shift, 2)
         lay.addWidget(self.canvas, 3)
         self.rows: list[dict[str, Any]] = []
 
@@ -575,9 +747,12 @@ class HistoryStrip(QWidget):
         """Size and device-pixel ratio of the chart (for :func:`prepare_view`)."""
         return self.canvas.size_px()
 
-    def refresh(self, outdir: Path | None) -> None:
-        """Re-read ``outdir/history.sqlite`` (nothing when there is none yet)."""
+    def refresh(self, outdir: Path | None, shifts: Any = None) -> None:
+        """Re-read ``outdir/history.sqlite`` (nothing when there is none yet); with ``shifts``
+        (:class:`~inspector.shift.ShiftSettings`) the current shift's counters too."""
         self.show_rows(read_rows(outdir))
+        if shifts is not None:
+            self.shift.show_counters(read_shift(outdir, shifts))
 
     def show_rows(self, rows: list[dict[str, Any]], chart: QImage | None = None) -> None:
         """Show ``rows``; ``chart``: their :func:`history_chart`, made ahead (else drawn here,
@@ -587,8 +762,11 @@ class HistoryStrip(QWidget):
         self.rows = rows
         self.chips.set_rows(rows)
         n, share = tally(rows)
-        text = (f"yield {share:.1%}  ({n['pass']} pass, {n['fail']} fail, {n['error']} error)" if share is not None
-                else ("no part judged yet" if not rows else f"{n['error']} error"))
+        if share is not None:
+            text = self.tr("last {n}: yield {share} \u00b7 pass {p} \u00b7 fail {f} \u00b7 error {e}").format(
+                n=len(rows), share=percent(share), p=n["pass"], f=n["fail"], e=n["error"])
+        else:
+            text = self.tr("no part judged yet") if not rows else self.tr("error {e}").format(e=n["error"])
         if text != self.yield_label.text():
             self.yield_label.setText(text)
         if chart is None:

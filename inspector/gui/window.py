@@ -5,6 +5,14 @@ the defect table and the camera strip on the right; the history strip at the bot
 recipe, the role and the stage progress in the status bar. Keyboard: Space or F5 INSPECT,
 F6 LIVE, Esc CANCEL, Ctrl+O open a capture, Ctrl+Shift+O open a result, Ctrl+E export the
 report, Ctrl+L engineer login, Ctrl+R choose a recipe and Ctrl+Shift+E edit it (engineer).
+
+The window fits the screen it opens on (:meth:`MainWindow.fit_screen`: the available
+geometry in logical pixels, never larger; a portrait screen gets the portrait layout). In
+kiosk mode (``inspector gui --kiosk`` or the cell's ``[gui] kiosk = true``) it is full screen
+without decorations, the operator cannot close it and sees no menu item that leaves the
+operator's role, and it comes back to the front after a dialog. The history strip shows the
+current shift's counters (:mod:`inspector.shift`). Every text goes through ``self.tr``
+(:mod:`inspector.gui.i18n`).
 """
 
 from __future__ import annotations
@@ -16,16 +24,19 @@ import time
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QEvent, QObject, Qt, QTimer, Signal
-from PySide6.QtGui import QAction, QKeySequence, QShortcut
+from PySide6.QtCore import QEvent, QObject, QRect, QSize, Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QGuiApplication, QKeySequence, QScreen, QShortcut
 from PySide6.QtWidgets import (
+    QApplication,
+    QBoxLayout,
+    QDialog,
     QDockWidget,
     QFileDialog,
-    QHBoxLayout,
     QLabel,
     QMainWindow,
     QMessageBox,
     QPushButton,
+    QSizePolicy,
     QSplitter,
     QVBoxLayout,
     QWidget,
@@ -34,17 +45,29 @@ from PySide6.QtWidgets import (
 from inspector.errors import InputError, InspectorError, RecipeError
 from inspector.gui.view3d import DeviationView
 from inspector.gui.viewmodel import ResultView, from_folder
-from inspector.gui.widgets import HISTORY, CameraDialog, CameraStrip, DefectTable, HistoryStrip, VerdictBanner, prepare_view
+from inspector.gui.i18n import number
+from inspector.gui.widgets import (
+    HISTORY,
+    SHIFT,
+    CameraDialog,
+    CameraStrip,
+    DefectTable,
+    HistoryStrip,
+    VerdictBanner,
+    prepare_view,
+    verdict_word,
+)
 from inspector.gui.worker import SessionWorker
 from inspector.manager import PluginManager, create_plugin_manager
 from inspector.roles import ENGINEER, RoleSession
 from inspector.session import Session, Source
+from inspector.shift import ShiftSettings
 
 __all__ = ["MainWindow", "freeze_startup_objects"]
 
 STYLE = """
 QWidget { font-size: 12pt; }
-QPushButton#inspect, QPushButton#live, QPushButton#cancel { min-width: 150px; font-size: 18pt; font-weight: bold; }
+QPushButton#inspect, QPushButton#live, QPushButton#cancel { min-width: 150px; padding: 0 14px; font-size: 18pt; font-weight: bold; }
 QPushButton#inspect { background: #1557a0; color: white; border-radius: 6px; }
 QPushButton#inspect:disabled { background: #9e9e9e; color: #eeeeee; }
 QPushButton#live:checked { background: #2e7d32; color: white; }
@@ -98,6 +121,27 @@ class _Activity(QObject):
         return False
 
 
+class _KioskGuard(QObject):
+    """Kiosk: a dialog of the window that closes brings the window back to the front (without
+    a window manager nothing else would), and so does the window losing the focus to nothing."""
+
+    def __init__(self, window: MainWindow) -> None:
+        super().__init__(window)
+        self.window = window
+
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:  # noqa: N802
+        kind = event.type()
+        if kind == QEvent.Type.Hide and isinstance(obj, QDialog):
+            QTimer.singleShot(0, self.window.to_front)
+        elif kind == QEvent.Type.WindowDeactivate and obj is self.window:
+            QTimer.singleShot(50, self._refocus)
+        return False
+
+    def _refocus(self) -> None:
+        if QApplication.activeWindow() is None and QApplication.activeModalWidget() is None:
+            self.window.to_front()
+
+
 class MainWindow(QMainWindow):
     """The operator's window.
 
@@ -111,6 +155,12 @@ class MainWindow(QMainWindow):
         A capture folder to inspect with INSPECT, or an inbox for LIVE.
     idle_logout_s : float
         Engineer mode falls back to operator after this long without a key or a click.
+    kiosk : bool
+        The cell's kiosk: full screen without decorations, the operator cannot close the
+        window (Alt+F4, Ctrl+Q and the window's close are refused; the Quit item is hidden),
+        the engineer can; the window comes back to the front after any dialog.
+    shifts : ShiftSettings, optional
+        The cell's shift times (:mod:`inspector.shift`) of the shift panel.
 
     Signals
     -------
@@ -130,9 +180,12 @@ class MainWindow(QMainWindow):
 
     def __init__(self, recipe: Path, out: Path, *, capture: Path | None = None, watch: Path | None = None,
                  reference: str | None = None, idle_logout_s: float = 300.0, config_dir: Path | None = None,
-                 pm: PluginManager | None = None) -> None:
+                 pm: PluginManager | None = None, kiosk: bool = False, shifts: ShiftSettings | None = None) -> None:
         super().__init__()
-        self.setWindowTitle("Inspector: operator")
+        self.kiosk = kiosk
+        self.shifts = shifts or ShiftSettings()
+        self._leaving = False  # set by shutdown(): a close the role rules do not stop
+        self.setWindowTitle(self.tr("Inspector: operator"))
         self.setStyleSheet(STYLE)
         self.out = Path(out)
         self.capture = Path(capture) if capture else None
@@ -167,43 +220,56 @@ class MainWindow(QMainWindow):
         self._gate = threading.Event()
         self._build()
         self._activity = _Activity(self.roles)
-        from PySide6.QtWidgets import QApplication
-
         app = QApplication.instance()
         assert app is not None  # a widget exists, so does the application
         app.installEventFilter(self._activity)
+        self._guard: _KioskGuard | None = None
+        if kiosk:
+            self.setWindowFlag(Qt.WindowType.FramelessWindowHint, True)
+            self._guard = _KioskGuard(self)
+            app.installEventFilter(self._guard)
         self._idle = QTimer(self)
         self._idle.setInterval(1000)
         self._idle.timeout.connect(self._check_idle)
         self._idle.start()
         self.open_recipe(self.recipe_path, audit=False)
-        self.history.refresh(self.out)
+        self.history.refresh(self.out, self.shifts)
         self._add_plugin_panels()
+        # The shift panel rolls over to the next shift by itself, and counts what another
+        # process (a CLI run on the same OUTDIR) added.
+        self._shift_timer = QTimer(self)
+        self._shift_timer.setInterval(60_000)
+        self._shift_timer.timeout.connect(self.refresh_shift)
+        self._shift_timer.start()
+        self._fitted_for: tuple[int, int, int, int] | None = None
 
     # -- building -----------------------------------------------------------------------------
     def _build(self) -> None:
         self.banner = VerdictBanner()
-        self.inspect_button = QPushButton("INSPECT")
+        self.inspect_button = QPushButton(self.tr("INSPECT"))
         self.inspect_button.setObjectName("inspect")
-        self.inspect_button.setToolTip("Inspect the next part (Space or F5)")
+        self.inspect_button.setToolTip(self.tr("Inspect the next part (Space or F5)"))
         self.inspect_button.clicked.connect(self.inspect)
-        self.live_button = QPushButton("LIVE")
+        self.live_button = QPushButton(self.tr("LIVE"))
         self.live_button.setObjectName("live")
         self.live_button.setCheckable(True)
-        self.live_button.setToolTip("Inspect continuously until stopped (F6)")
+        self.live_button.setToolTip(self.tr("Inspect continuously until stopped (F6)"))
         self.live_button.clicked.connect(self.toggle_live)
-        self.cancel_button = QPushButton("CANCEL")
+        self.cancel_button = QPushButton(self.tr("CANCEL"))
         self.cancel_button.setObjectName("cancel")
-        self.cancel_button.setToolTip("Abort the inspection in progress (Esc)")
+        self.cancel_button.setToolTip(self.tr("Abort the inspection in progress (Esc)"))
         self.cancel_button.clicked.connect(self.cancel)
         self.cancel_button.setEnabled(False)
-        buttons = QVBoxLayout()
+        # The buttons' box: a column beside the banner (landscape), a row under it (portrait).
+        self.portrait = False
+        self.buttons = QBoxLayout(QBoxLayout.Direction.TopToBottom)
         for b in (self.inspect_button, self.live_button, self.cancel_button):
             b.setMinimumHeight(64)
-            buttons.addWidget(b)
-        top = QHBoxLayout()
+            self.buttons.addWidget(b)
+        top = QBoxLayout(QBoxLayout.Direction.LeftToRight)
         top.addWidget(self.banner, 1)
-        top.addLayout(buttons)
+        top.addLayout(self.buttons)
+        self.top_box = top
 
         self.view3d = DeviationView()
         self.defects = DefectTable()
@@ -218,6 +284,7 @@ class MainWindow(QMainWindow):
         middle.addWidget(self.view3d)
         middle.addWidget(right)
         middle.setSizes([1100, 800])
+        self.middle, self.right = middle, right
         self.history = HistoryStrip()
 
         central = QWidget()
@@ -231,25 +298,29 @@ class MainWindow(QMainWindow):
         self.recipe_label = QLabel()
         self.role_label = QLabel()
         self.progress_label = QLabel()
+        for label in (self.recipe_label, self.progress_label):
+            # Long texts (paths): never wider than the screen; the whole text in the tooltip.
+            label.setSizePolicy(QSizePolicy.Policy.Ignored, QSizePolicy.Policy.Preferred)
+            label.setMinimumWidth(1)
         sb = self.statusBar()
         sb.addWidget(self.recipe_label, 2)
         sb.addWidget(self.progress_label, 2)
         sb.addPermanentWidget(self.role_label)
 
-        file_menu = self.menuBar().addMenu("&File")
-        self.act_open_capture = self._action(file_menu, "Open capture folder…", "Ctrl+O", self.ask_capture)
-        self.act_open_result = self._action(file_menu, "Open result folder…", "Ctrl+Shift+O", self.ask_result)
-        self.act_export = self._action(file_menu, "Export report (PDF)", "Ctrl+E", self.export_report)
+        file_menu = self.menuBar().addMenu(self.tr("&File"))
+        self.act_open_capture = self._action(file_menu, self.tr("Open capture folder…"), "Ctrl+O", self.ask_capture)
+        self.act_open_result = self._action(file_menu, self.tr("Open result folder…"), "Ctrl+Shift+O", self.ask_result)
+        self.act_export = self._action(file_menu, self.tr("Export report (PDF)"), "Ctrl+E", self.export_report)
         file_menu.addSeparator()
-        self._action(file_menu, "Quit", "Ctrl+Q", self.close)
-        role_menu = self.menuBar().addMenu("&Role")
-        self.act_login = self._action(role_menu, "Engineer login…", "Ctrl+L", self.ask_login)
-        self.act_logout = self._action(role_menu, "Back to operator", "Ctrl+Shift+L", self.logout)
-        recipe_menu = self.menuBar().addMenu("Re&cipe")
-        self.act_choose = self._action(recipe_menu, "Choose recipe…", "Ctrl+R", self.ask_recipe)
-        self.act_edit = self._action(recipe_menu, "Edit recipe…", "Ctrl+Shift+E", self.edit_recipe)
-        view_menu = self.menuBar().addMenu("&View")
-        self._action(view_menu, "Reset 3D view", "Home", self.view3d.reset_camera)
+        self.act_quit = self._action(file_menu, self.tr("Quit"), "Ctrl+Q", self.close)
+        role_menu = self.menuBar().addMenu(self.tr("&Role"))
+        self.act_login = self._action(role_menu, self.tr("Engineer login…"), "Ctrl+L", self.ask_login)
+        self.act_logout = self._action(role_menu, self.tr("Back to operator"), "Ctrl+Shift+L", self.logout)
+        recipe_menu = self.menuBar().addMenu(self.tr("Re&cipe"))
+        self.act_choose = self._action(recipe_menu, self.tr("Choose recipe…"), "Ctrl+R", self.ask_recipe)
+        self.act_edit = self._action(recipe_menu, self.tr("Edit recipe…"), "Ctrl+Shift+E", self.edit_recipe)
+        view_menu = self.menuBar().addMenu(self.tr("&View"))
+        self._action(view_menu, self.tr("Reset 3D view"), "Home", self.view3d.reset_camera)
         self.view_menu = view_menu
 
         for key in ("Space", "F5"):
@@ -271,12 +342,14 @@ class MainWindow(QMainWindow):
         a warning naming it, and the GUI goes on."""
         for name, value in self.pm.gui_panels(self):
             if isinstance(value, Exception):
-                self._plugin_warning(f"plugin {name!r} disabled: its panel raised {type(value).__name__}: {value}")
+                self._plugin_warning(self.tr("plugin {name} disabled: its panel raised {error}").format(
+                    name=repr(name), error=f"{type(value).__name__}: {value}"))
                 continue
             if value is None:
                 continue
             if not (isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], str) and isinstance(value[1], QWidget)):
-                self._plugin_warning(f"plugin {name!r} disabled: its panel must be (title, QWidget), got {type(value).__name__}")
+                self._plugin_warning(self.tr("plugin {name} disabled: its panel must be (title, QWidget), got {type}").format(
+                    name=repr(name), type=type(value).__name__))
                 continue
             dock = QDockWidget(value[0], self)
             dock.setObjectName(f"plugin-{name}")
@@ -308,7 +381,7 @@ class MainWindow(QMainWindow):
             self.worker.stage.connect(self._on_stage)
             self.worker.verdict.connect(self._on_verdict)
             self.worker.result.connect(self.show_result)
-            self.worker.warned.connect(lambda t: self.progress_label.setText(f"\u26a0 warning: {t}"))
+            self.worker.warned.connect(lambda t: self.progress_label.setText("\u26a0 " + self.tr("warning: {text}").format(text=t)))
             self.worker.failed.connect(self._on_failed)
             self.worker.ended.connect(self._on_ended)
         if audit and before is not None and before != self.recipe_path:
@@ -328,7 +401,7 @@ class MainWindow(QMainWindow):
 
     def _update_recipe_label(self) -> None:
         if self.recipe_error:
-            self.recipe_label.setText(f"recipe {self.recipe_path.name}: INVALID: {self.recipe_error}")
+            self.recipe_label.setText(self.tr("recipe {name}: INVALID: {error}").format(name=self.recipe_path.name, error=self.recipe_error))
             self.recipe_label.setStyleSheet("color: #9e9e9e;")
             self.recipe_label.setToolTip(self.recipe_error)
             self.banner.set_state("invalid", f"{self.recipe_path}", self.recipe_error)
@@ -336,8 +409,11 @@ class MainWindow(QMainWindow):
             s = self.session
             if s is None:  # closed (a valid recipe always has a session while open)
                 return
-            src = f"capture {self.capture}" if self.capture else (f"watch {self.watch}" if self.watch else f"driver {s.recipe.driver.spec.name}")
-            self.recipe_label.setText(f"recipe {s.recipe.name} ({self.recipe_path.name}, sha256 {(s.recipe.sha256 or '')[:10]}) \u00b7 {src} \u00b7 results in {self.out}")
+            src = (self.tr("capture {path}").format(path=self.capture) if self.capture else
+                   self.tr("watch {path}").format(path=self.watch) if self.watch else
+                   self.tr("driver {name}").format(name=s.recipe.driver.spec.name))
+            self.recipe_label.setText(self.tr("recipe {name} ({file}, sha256 {sha}) \u00b7 {source} \u00b7 results in {out}").format(
+                name=s.recipe.name, file=self.recipe_path.name, sha=(s.recipe.sha256 or "")[:10], source=src, out=self.out))
             self.recipe_label.setStyleSheet("")
             self.recipe_label.setToolTip(str(self.recipe_path))
 
@@ -349,6 +425,10 @@ class MainWindow(QMainWindow):
         self.cancel_button.setEnabled(busy)
         self.act_open_capture.setEnabled(ok and not busy)
         engineer = self.roles.role == ENGINEER
+        if self.kiosk:  # the operator's kiosk shows no item that leaves the operator's role
+            for act in (self.act_quit, self.act_choose, self.act_edit, self.act_logout):
+                act.setVisible(engineer)
+        self.act_quit.setEnabled(engineer or not self.kiosk)
         self.act_choose.setEnabled(engineer and not busy)
         self.act_edit.setEnabled(engineer and not busy and self.recipe_path.is_file())
         self.act_login.setEnabled(not engineer)
@@ -385,16 +465,16 @@ class MainWindow(QMainWindow):
             self.worker.start(self._source(continuous=True))
         elif not self.live_button.isChecked() and self.live:
             self.worker.stop()  # ends after the part in progress
-            self.progress_label.setText("LIVE stopping after the part in progress…")
+            self.progress_label.setText(self.tr("LIVE stopping after the part in progress…"))
         self._update_buttons()
 
     def cancel(self) -> None:
         if self.worker is not None and self.worker.busy:
             self.worker.cancel()
-            self.progress_label.setText("cancelling before the next stage…")
+            self.progress_label.setText(self.tr("cancelling before the next stage…"))
 
     def _on_started(self, what: str) -> None:
-        self.banner.set_state("busy", f"{'LIVE' if self.live else 'INSPECT'}: {what}")
+        self.banner.set_state("busy", f"{self.tr('LIVE') if self.live else self.tr('INSPECT')}: {what}")
         self._update_buttons()
 
     def _on_stage(self, capture: str, step: str, seconds: float) -> None:
@@ -403,20 +483,21 @@ class MainWindow(QMainWindow):
             if self.banner.state != "busy":
                 self.banner.set_state("busy", f"{capture}: {step} …")
         else:
-            self.progress_label.setText(f"{capture}: {step} done ({seconds:.2f} s)")
+            self.progress_label.setText(self.tr("{capture}: {step} done ({seconds} s)").format(
+                capture=capture, step=step, seconds=number(seconds, 2)))
 
     def _on_failed(self, message: str) -> None:
-        self.banner.set_state("error", "the run could not go on", message)
-        self.progress_label.setText(f"error: {message}")
+        self.banner.set_state("error", self.tr("the run could not go on"), message)
+        self.progress_label.setText(self.tr("error: {message}").format(message=message))
 
     def _on_ended(self, summary: Any) -> None:
         self.live = False
         self.live_button.setChecked(False)
         self._update_buttons()
         if summary is not None and not summary.inspected and not summary.counts.get("aborted"):
-            self.progress_label.setText("no capture arrived" if summary.inbox is not None else "nothing to inspect")
+            self.progress_label.setText(self.tr("no capture arrived") if summary.inbox is not None else self.tr("nothing to inspect"))
             if self.banner.state == "busy":
-                self.banner.set_state("ready", "nothing was inspected")
+                self.banner.set_state("ready", self.tr("nothing was inspected"))
         self.inspect_button.setFocus()
         if self._early is not None:  # its complete view never came (the worker sends it before the end)
             self._early = None
@@ -431,7 +512,7 @@ class MainWindow(QMainWindow):
     def _prepare(self, view: ResultView) -> ResultView:
         """In the worker thread: the drawing of ``view`` made ahead (camera pictures, history
         rows and chart). Reads no widget: the chart's size is a value the strip keeps."""
-        return prepare_view(view, self.out, self.history.chart_size())
+        return prepare_view(view, self.out, self.history.chart_size(), self.shifts)
 
     def _on_verdict(self, view: ResultView) -> None:
         """A result without its camera images, as soon as it is written: the verdict now, the
@@ -468,8 +549,10 @@ class MainWindow(QMainWindow):
         self.current_result = view
         self.banner.show_result(view)
         self.defects.show_result(view)
-        self.progress_label.setText(f"{view.capture}: {view.verdict.upper()}"
-                                    + (f" in {view.cycle_s:.2f} s" if view.cycle_s is not None else ""))
+        word = verdict_word(view.verdict)
+        self.progress_label.setText(self.tr("{capture}: {verdict} in {seconds} s").format(
+            capture=view.capture, verdict=word, seconds=number(view.cycle_s, 2)) if view.cycle_s is not None
+            else f"{view.capture}: {word}")
         self._update_buttons()
         self.inspect_button.setFocus()
         self.banner.repaint()  # on screen now, before anything else is drawn
@@ -504,9 +587,10 @@ class MainWindow(QMainWindow):
     def _show_history(self, view: ResultView) -> None:
         prepared = view.prepared.get(HISTORY)
         if prepared is None:  # a result opened from its folder: read here
-            self.history.refresh(self.out)
+            self.history.refresh(self.out, self.shifts)
         else:
             self.history.show_rows(*prepared)
+            self.history.shift.show_counters(view.prepared.get(SHIFT))
 
     def _drawn(self) -> None:
         self.result_shown.emit(self.current_result)
@@ -551,7 +635,10 @@ class MainWindow(QMainWindow):
         self._selected = tuple(v.defects[index].cameras)
         self.cameras.highlight(self._selected)
         d = v.defects[index]
-        self.progress_label.setText(f"defect {d.number}: {d.kind} material {d.worst_mm:+.3f} mm, seen by {', '.join(d.cameras) or 'no camera'}")
+        text = (self.tr("defect {n}: missing material {worst} mm, seen by {cameras}") if d.kind == "missing"
+                else self.tr("defect {n}: excess material {worst} mm, seen by {cameras}"))
+        self.progress_label.setText(text.format(n=d.number, worst=number(d.worst_mm, 3, sign=True),
+                                                cameras=", ".join(d.cameras) or self.tr("no camera")))
 
     def open_camera(self, name: str) -> CameraDialog | None:
         self.flush_drawing()
@@ -566,9 +653,15 @@ class MainWindow(QMainWindow):
 
     # -- files --------------------------------------------------------------------------------
     def ask_capture(self) -> None:
-        path = QFileDialog.getExistingDirectory(self, "Open capture folder")
+        path = QFileDialog.getExistingDirectory(self, self.tr("Open capture folder"), options=self._dialog_options())
         if path:
             self.open_capture(Path(path))
+
+    def _dialog_options(self, *, folders: bool = True) -> QFileDialog.Option:
+        """Folders only (or files), and in kiosk mode Qt's own file dialog (a desktop's
+        native one opens the file manager's way out of the operator's screen)."""
+        options = QFileDialog.Option.ShowDirsOnly if folders else QFileDialog.Option(0)
+        return options | QFileDialog.Option.DontUseNativeDialog if self.kiosk else options
 
     def open_capture(self, path: Path) -> None:
         """INSPECT now reads this capture folder (or folder of captures)."""
@@ -577,7 +670,8 @@ class MainWindow(QMainWindow):
         self.inspect()
 
     def ask_result(self) -> None:
-        path = QFileDialog.getExistingDirectory(self, "Open result folder", str(self.out))
+        path = QFileDialog.getExistingDirectory(self, self.tr("Open result folder"), str(self.out),
+                                                options=self._dialog_options())
         if path:
             self.open_result(Path(path))
 
@@ -586,7 +680,7 @@ class MainWindow(QMainWindow):
         try:
             view = from_folder(folder, self.session.reference if self.session else None)
         except InputError as e:
-            self.banner.set_state("error", f"cannot open {folder}", str(e))
+            self.banner.set_state("error", self.tr("cannot open {folder}").format(folder=folder), str(e))
             return False
         self.show_result(view)
         return True
@@ -598,7 +692,7 @@ class MainWindow(QMainWindow):
         self.flush_drawing()
         v = self.current_result
         if v is None or v.folder is None:
-            self.progress_label.setText("no written result to export")
+            self.progress_label.setText(self.tr("no written result to export"))
             return None
         try:
             with tempfile.TemporaryDirectory() as tmp:
@@ -606,9 +700,9 @@ class MainWindow(QMainWindow):
                 pdf = render_pdf(v.folder, picture=picture,
                                  recipe=self.recipe_path if self.session and self.session.recipe.name == v.recipe else None)
         except (InspectorError, OSError) as e:
-            self.progress_label.setText(f"export failed: {e}")
+            self.progress_label.setText(self.tr("export failed: {error}").format(error=e))
             return None
-        self.progress_label.setText(f"report written: {pdf}")
+        self.progress_label.setText(self.tr("report written: {path}").format(path=pdf))
         return pdf
 
     # -- roles --------------------------------------------------------------------------------
@@ -623,8 +717,8 @@ class MainWindow(QMainWindow):
     def login(self, who: str, password: str) -> bool:
         ok = self.roles.login_engineer(password, who)
         if not ok:
-            QMessageBox.warning(self, "Engineer login", "Wrong password, or no engineer password is set "
-                                "(`inspector roles set-password`).")
+            QMessageBox.warning(self, self.tr("Engineer login"), self.tr("Wrong password, or no engineer password is set "
+                                                                        "(`inspector roles set-password`)."))
         self._update_role()
         return ok
 
@@ -632,39 +726,120 @@ class MainWindow(QMainWindow):
         self.roles.logout()
         self._update_role()
 
+    # -- the screen and the kiosk -------------------------------------------------------------
+    def fit_screen(self, screen: QScreen | None = None) -> QRect:
+        """Size and place the window for ``screen`` (default: the one it is on, else the
+        primary): its available geometry (the desktop's panels left out; logical pixels, so
+        HiDPI scaling is honoured), never larger; the whole screen in kiosk mode. A portrait
+        screen gets the portrait layout (:meth:`set_portrait`). Returns the geometry set."""
+        screen = screen or self.screen() or QGuiApplication.primaryScreen()
+        area = screen.geometry() if self.kiosk else screen.availableGeometry()
+        self.set_portrait(area.height() > area.width())
+        if self.kiosk:
+            self.setGeometry(area)
+            return area
+        # A window manager adds its frame around the client area: known once shown (0 before,
+        # and without a window manager); showEvent fits again with it.
+        frame = self.frameGeometry().size() - self.geometry().size() if self.isVisible() else QSize(0, 0)
+        size = area.size() - frame
+        self.resize(size)
+        self.move(area.topLeft())
+        self._fitted_for = (area.x(), area.y(), area.width(), area.height())
+        return QRect(area.topLeft(), size)
+
+    def show_on_screen(self, screen: QScreen | None = None) -> None:
+        """Show the window fitted to ``screen`` (full screen in kiosk mode)."""
+        if screen is not None and self.windowHandle() is None:
+            self.create()
+        if screen is not None and self.windowHandle() is not None:
+            self.windowHandle().setScreen(screen)
+        self.fit_screen(screen)
+        if self.kiosk:
+            self.showFullScreen()
+        else:
+            self.show()
+
+    def showEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+        super().showEvent(event)
+        if not self.kiosk and self._fitted_for is not None:
+            QTimer.singleShot(0, self._refit_frame)
+
+    def _refit_frame(self) -> None:
+        """Once shown, a window manager's frame is known: the frame, not only the client
+        area, must fit the available area."""
+        screen = self.screen()
+        if screen is None or self.isFullScreen() or self.isMaximized():
+            return
+        area = screen.availableGeometry()
+        if not area.contains(self.frameGeometry()):
+            self.fit_screen(screen)
+
+    def set_portrait(self, portrait: bool) -> None:
+        """The portrait layout (a screen higher than wide): the buttons in a row under the
+        banner, the 3D view above the defects and cameras, which sit side by side."""
+        self.portrait = portrait
+        self.top_box.setDirection(QBoxLayout.Direction.TopToBottom if portrait else QBoxLayout.Direction.LeftToRight)
+        self.buttons.setDirection(QBoxLayout.Direction.LeftToRight if portrait else QBoxLayout.Direction.TopToBottom)
+        self.middle.setOrientation(Qt.Orientation.Vertical if portrait else Qt.Orientation.Horizontal)
+        self.right.setOrientation(Qt.Orientation.Horizontal if portrait else Qt.Orientation.Vertical)
+        self.right.setSizes([400, 400] if portrait else [220, 520])
+
+    def to_front(self) -> None:
+        """The window back in front and active (kiosk: after a dialog closed)."""
+        if not self.isVisible() or self._closing:
+            return
+        if self.kiosk and not self.isFullScreen():
+            self.showFullScreen()
+        self.raise_()
+        self.activateWindow()
+
+    def shutdown(self) -> bool:
+        """Close the window whatever the role (the application quitting, a test's end)."""
+        self._leaving = True
+        return self.close()
+
+    def refresh_shift(self) -> None:
+        """Read the current shift's counters again (also once a minute: a new shift begins
+        by itself)."""
+        from inspector.gui.widgets import read_shift
+
+        self.history.shift.show_counters(read_shift(self.out, self.shifts))
+
     def _check_idle(self) -> None:
         if self.roles.check_idle():
-            self.progress_label.setText("engineer idle: back to operator")
+            self.progress_label.setText(self.tr("engineer idle: back to operator"))
         self._update_role()
 
     def _update_role(self) -> None:
         if self.roles.role == ENGINEER:
             left = self.roles.idle_remaining()
-            self.role_label.setText(f"ENGINEER {self.roles.user}  (operator in {int(left) // 60}:{int(left) % 60:02d})")
+            self.role_label.setText(self.tr("ENGINEER {user}  (operator in {time})").format(
+                user=self.roles.user, time=f"{int(left) // 60}:{int(left) % 60:02d}"))
             self.role_label.setStyleSheet("color: #b86e00; font-weight: bold;")
         else:
-            self.role_label.setText("OPERATOR")
+            self.role_label.setText(self.tr("OPERATOR"))
             self.role_label.setStyleSheet("font-weight: bold;")
         self._update_buttons()
 
     def ask_recipe(self) -> None:
         if self.roles.role != ENGINEER:
             return
-        path, _ = QFileDialog.getOpenFileName(self, "Choose recipe", str(self.recipe_path.parent), "Recipes (*.toml)")
+        path, _ = QFileDialog.getOpenFileName(self, self.tr("Choose recipe"), str(self.recipe_path.parent),
+                                              self.tr("Recipes (*.toml)"), options=self._dialog_options(folders=False))
         if path:
             self.open_recipe(Path(path))
 
     def edit_recipe(self) -> Any:
         """The recipe editor (engineer only); a saved recipe is used at once."""
         if self.roles.role != ENGINEER:
-            self.progress_label.setText("the recipe editor needs engineer mode (Ctrl+L)")
+            self.progress_label.setText(self.tr("the recipe editor needs engineer mode (Ctrl+L)"))
             return None
         from inspector.gui.editor import RecipeEditor
 
         try:
             editor = RecipeEditor(self.recipe_path, self.pm, self.out / "recipes", self)
         except RecipeError as e:
-            self.progress_label.setText(f"cannot edit: {e}")
+            self.progress_label.setText(self.tr("cannot edit: {error}").format(error=e))
             return None
         (self.out / "recipes").mkdir(parents=True, exist_ok=True)
         editor.accepted.connect(lambda: editor.saved and self.open_recipe(editor.saved))
@@ -682,8 +857,12 @@ class MainWindow(QMainWindow):
     # -- closing ------------------------------------------------------------------------------
     def closeEvent(self, event: Any) -> None:  # noqa: N802
         """Closing during an inspection cancels it and joins the worker."""
-        from PySide6.QtWidgets import QApplication
-
+        if self.kiosk and not self._leaving and self.roles.role != ENGINEER:
+            # The operator's kiosk stays: Alt+F4 (the window manager's close), Ctrl+Q and
+            # any other close are refused; the engineer (or shutdown()) may leave.
+            event.ignore()
+            self.progress_label.setText(self.tr("the kiosk stays open: closing needs engineer mode (Ctrl+L)"))
+            return
         self._closing = True
         self._step_timer.stop()
         self._steps = []
@@ -693,5 +872,7 @@ class MainWindow(QMainWindow):
         app = QApplication.instance()
         assert app is not None  # a widget exists, so does the application
         app.removeEventFilter(self._activity)
+        if self._guard is not None:
+            app.removeEventFilter(self._guard)
         self.view3d.close_plotter()
         super().closeEvent(event)

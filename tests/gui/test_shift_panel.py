@@ -1,0 +1,55 @@
+"""The shift at a glance in the operator window: the panel's counters are the history's for
+the same rows (a history made by real inspections: the CLI's, then one of the window's)."""
+
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from pathlib import Path
+
+import pytest
+from PySide6.QtCore import Qt
+
+pytestmark = [pytest.mark.gui, pytest.mark.slow]
+
+ROOT = Path(__file__).resolve().parents[2]
+DEMO = ROOT / "recipes" / "demo.toml"
+
+
+def test_the_shift_panel_counts_what_the_history_has(qtbot, tmp_path, sim_captures):
+    from inspector.cli import main
+    from inspector.gui.window import MainWindow
+    from inspector.shift import ShiftSettings
+    from inspector_plugins.history import read_history, tally
+
+    out = tmp_path / "out"
+    assert main(["run", str(DEMO), "--capture", str(sim_captures["good"]), str(sim_captures["notched"]),
+                 "--out", str(out), "-q"]) == 1
+    rows = read_history(out)
+    first = datetime.fromisoformat(rows[0]["inspected_at"]).astimezone(timezone.utc)
+    # One 24-hour shift from the first row's minute: every row is in it, whenever the test runs.
+    shifts = ShiftSettings(starts=(first.strftime("%H:%M"),), names=("day",), timezone="UTC")
+    w = MainWindow(DEMO, out, capture=sim_captures["notched"], config_dir=tmp_path / "config", shifts=shifts)
+    qtbot.addWidget(w)
+    w.show_on_screen()
+    qtbot.waitExposed(w)
+    w.activateWindow()
+    qtbot.waitUntil(w.isActiveWindow, timeout=5000)
+
+    def check() -> None:
+        rows = read_history(out)
+        n, share = tally(rows)
+        c = w.history.shift.counters
+        assert c is not None and c.ids == tuple(r["id"] for r in rows)
+        assert (c.passed, c.failed, c.errors) == (n["pass"], n["fail"], n["error"]) and c.yield_ == share
+        text = w.history.shift.counts.text()
+        assert f"{len(rows)} inspected" in text and f"pass {n['pass']}" in text and f"fail {n['fail']}" in text
+        assert w.history.shift.regions.text().startswith("worst regions: default")
+
+    check()
+    assert len(read_history(out)) == 2
+    with qtbot.waitSignal(w.run_finished, timeout=240_000):
+        qtbot.keyClick(w, Qt.Key.Key_Space)  # a third inspection, by the window
+    qtbot.waitUntil(lambda: not w.drawing, timeout=30_000)
+    assert len(read_history(out)) == 3
+    check()
+    w.close()
