@@ -14,13 +14,23 @@ only the history row: the result folder is already written, and the runner says 
 line.
 
 The plant database (``[plugins.history] url``, else ``$INSPECTOR_HISTORY_URL``; the
-connection is ``plugins/history_plant.py``): every row is first committed to the cell's file
-together with an entry of its ``spool`` table, then the spool is sent, oldest first, each
-batch in one PostgreSQL transaction, its entries deleted only after that commit. A server
-that is down costs one warning line (its URL without the password) and the rows wait in the
-spool until a later record, a run's start or end, or ``inspector history OUTDIR --send``
-reaches it. A row is inserted with ``ON CONFLICT (uid) DO NOTHING``: sent twice (a crash
-between the server's commit and the spool's delete), it is stored once.
+connection is ``plugins/history_plant.py``) is off the inspection's path: every row is first
+committed to the cell's file together with an entry of its ``spool`` table, and the inspection
+goes on; a sender thread of its own (one per run folder and database, fed by a bounded queue
+of nudges: a full queue loses nothing, the row is in the spool) sends the spool, oldest first,
+each batch in one PostgreSQL transaction, its entries deleted only after that commit. The
+connection has a ``statement_timeout`` and a ``lock_timeout`` (``[plugins.history]``), so a
+server that is slow or a table that is locked fails a send after seconds, like a server that is
+down: one warning line per episode (its URL without the password), the rows wait in the spool
+and are sent when it answers again (the sender retries every ``retry_s``, at least 1 s), at a
+run's start or end, or by ``inspector history OUTDIR --send``. A run's end waits at most
+``flush_wait_s`` for the spool to be sent; what is not sent stays in the spool. A row is
+inserted with ``ON CONFLICT (uid) DO NOTHING``: sent twice (a crash between the server's commit
+and the spool's delete), it is stored once.
+
+Every ``inspections`` row is hash-chained (:mod:`inspector.ledger`: its ``chain`` column is the
+SHA-256 of the previous row's ``chain`` and its own content, its defects included);
+``inspector history OUTDIR --verify`` names the first row changed or removed (exit 1).
 """
 
 from __future__ import annotations
@@ -28,10 +38,12 @@ from __future__ import annotations
 import json
 import math
 import os
+import queue
 import socket
 import sqlite3
 import sys
 import threading
+import time
 import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -42,6 +54,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from inspector import hookimpl
+from inspector import ledger
 from inspector.errors import InputError
 from inspector.model import InspectionResult
 from inspector.params import param
@@ -54,7 +67,7 @@ if TYPE_CHECKING:
 
 __all__ = ["HISTORY_FILE", "SCHEMA", "URL_ENV", "CELL_ENV", "HistorySettings", "record", "recorded", "read_history",
            "read_plant", "read_table", "spooled", "flush_spool", "tally", "draw_history", "plot_history",
-           "calibration_of", "draw_cameras", "plot_cameras"]
+           "calibration_of", "draw_cameras", "plot_cameras", "settle", "verify_history"]
 
 #: The history database, in the run's OUTDIR (beside the result folders).
 HISTORY_FILE = "history.sqlite"
@@ -70,9 +83,10 @@ CELL_ENV = "INSPECTOR_HISTORY_CELL"
 #: or the host name); ``uid`` a UUID given when the row is recorded (what makes a row sent to
 #: the plant database twice one row there); ``calibration_json`` the evaluate stage's calibration
 #: health (:func:`calibration_of`: how far each camera is off and its median residual, px, the flagged cameras
-#: and the threshold; NULL when it was not checked). ``extras``, ``cell``, ``uid`` and
-#: ``calibration_json`` were added compatibly: :func:`record` adds them to an older file (its
-#: older rows have NULL there).
+#: and the threshold; NULL when it was not checked); ``chain`` the row's link of the hash chain
+#: (:mod:`inspector.ledger`). ``extras``, ``cell``, ``uid``, ``calibration_json`` and ``chain``
+#: were added compatibly: :func:`record` adds them to an older file (its older rows have NULL
+#: there: the chain starts at the first row written after).
 #: The deviation and tolerance columns come from the evaluate stage's typed summary
 #: (:class:`inspector.model.EvaluationSummary`), whichever evaluate variant ran. ``spool``
 #: lists the rows not yet in the plant database (empty without one), oldest first.
@@ -100,7 +114,8 @@ CREATE TABLE IF NOT EXISTS inspections (
     extras TEXT,
     cell TEXT,
     uid TEXT,
-    calibration_json TEXT
+    calibration_json TEXT,
+    chain TEXT
 );
 CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture);
 CREATE INDEX IF NOT EXISTS inspections_part ON inspections (part_id);
@@ -112,6 +127,7 @@ CREATE TABLE IF NOT EXISTS defects (
     x REAL, y REAL, z REAL,
     region TEXT
 );
+CREATE INDEX IF NOT EXISTS defects_inspection ON defects (inspection_id);
 CREATE TABLE IF NOT EXISTS spool (
     inspection_id INTEGER PRIMARY KEY REFERENCES inspections (id)
 );
@@ -119,7 +135,7 @@ PRAGMA user_version = 1;
 """
 
 #: Columns added since the first files, with their type: added to an older file when written.
-_ADDED = (("extras", "TEXT"), ("cell", "TEXT"), ("uid", "TEXT"), ("calibration_json", "TEXT"))
+_ADDED = (("extras", "TEXT"), ("cell", "TEXT"), ("uid", "TEXT"), ("calibration_json", "TEXT"), ("chain", "TEXT"))
 
 
 def _connect(path: Path) -> sqlite3.Connection:
@@ -152,7 +168,8 @@ def default_cell() -> str:
 def _migrate(con: sqlite3.Connection) -> None:
     """Create the tables, and add the columns an older file lacks (nothing written when the
     file is current: the unique index on ``uid`` is made last)."""
-    if ({"inspections", "defects", "spool", "inspections_uid"} <= {r[0] for r in con.execute("SELECT name FROM sqlite_master")}
+    if ({"inspections", "defects", "spool", "inspections_uid", "defects_inspection"}
+            <= {r[0] for r in con.execute("SELECT name FROM sqlite_master")}
             and {c for c, _ in _ADDED} <= {r[1] for r in con.execute("PRAGMA table_info(inspections)")}):
         return
     con.executescript(SCHEMA)
@@ -228,6 +245,7 @@ def _record(con: sqlite3.Connection, result: InspectionResult, *, now: datetime 
         cell if cell is not None else default_cell(),
         str(uuid.uuid4()),
         calibration_of(result.stats),
+        None,  # chain: sealed below, from the row as stored, in the same transaction
     )
     _migrate(con)
     cur = con.execute(f"INSERT INTO inspections ({', '.join(COLUMNS)}) VALUES ({', '.join('?' * len(COLUMNS))})", row)
@@ -236,6 +254,7 @@ def _record(con: sqlite3.Connection, result: InspectionResult, *, now: datetime 
         "INSERT INTO defects (inspection_id, kind, n_points, worst_mm, x, y, z, region) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
         [(rid, d.kind, d.n_points, d.worst_mm, *d.position, d.region) for d in result.defects],
     )
+    ledger.seal(con, "inspections", rid, child=("defects", "inspection_id"))
     if spool:
         con.execute("INSERT INTO spool (inspection_id) VALUES (?)", (rid,))
     con.commit()
@@ -413,8 +432,17 @@ class HistorySettings:
                          "$INSPECTOR_HISTORY_URL, else only OUTDIR/history.sqlite is written")
     cell: str = param("", "this cell's name in the history; '' takes $INSPECTOR_HISTORY_CELL, else the host name")
     connect_timeout_s: int = param(3, "seconds to wait for the plant database to answer", min=1, max=60)
-    retry_s: float = param(30.0, "after a failed connection, seconds during which rows go straight to the spool",
-                           min=0.0, max=3600.0)
+    retry_s: float = param(30.0, "after a failed send, seconds during which rows go straight to the spool "
+                                 "(the sender tries again after this long, at least 1 s)", min=0.0, max=3600.0)
+    statement_timeout_s: float = param(10.0, "seconds one statement may run on the plant database before the send "
+                                             "fails and the rows wait in the spool (PostgreSQL statement_timeout)",
+                                       min=0.1, max=3600.0)
+    lock_timeout_s: float = param(3.0, "seconds a statement may wait for a lock on the plant database "
+                                       "(a LOCK TABLE held elsewhere; PostgreSQL lock_timeout)", min=0.1, max=3600.0)
+    flush_wait_s: float = param(10.0, "at a run's end, seconds to wait for the spool to be sent; what is not sent "
+                                      "stays in the spool", min=0.0, max=3600.0)
+    queue_size: int = param(1000, "nudges the sender may hold; more cost nothing (the rows are in the spool)",
+                            min=1, max=1_000_000)
 
     def __post_init__(self) -> None:
         if self.url:
@@ -424,7 +452,9 @@ class HistorySettings:
 
     def __repr__(self) -> str:  # a recipe's repr, in a log or a traceback, never shows the password
         return (f"HistorySettings(url={mask_url(self.url)!r}, cell={self.cell!r}, "
-                f"connect_timeout_s={self.connect_timeout_s!r}, retry_s={self.retry_s!r})")
+                f"connect_timeout_s={self.connect_timeout_s!r}, retry_s={self.retry_s!r}, "
+                f"statement_timeout_s={self.statement_timeout_s!r}, lock_timeout_s={self.lock_timeout_s!r}, "
+                f"flush_wait_s={self.flush_wait_s!r}, queue_size={self.queue_size!r})")
 
 
 @dataclass(frozen=True)
@@ -439,8 +469,10 @@ class _Target:
 _lock = threading.Lock()
 #: The recipe's settings of each run folder (resolved path), from inspector_on_run_start.
 _settings: dict[str, HistorySettings] = {}
-#: One connection (and outage state) per run folder and URL, kept between records.
+#: One connection (and outage state) per run folder and URL, kept between runs.
 _plants: dict[tuple[str, str], PlantDatabase] = {}
+#: The sender thread of each run folder and URL, while it runs.
+_senders: dict[tuple[str, str], _Sender] = {}
 #: URLs already warned about as invalid (from the environment: the recipe's are checked on load).
 _invalid_warned: set[str] = set()
 
@@ -470,7 +502,9 @@ def _plant(outdir: Path, target: _Target) -> PlantDatabase | None:
             try:
                 plant = PlantDatabase(target.url, connect_timeout_s=target.settings.connect_timeout_s,
                                       retry_s=target.settings.retry_s,
-                                      application_name=f"inspector history ({target.cell})")
+                                      application_name=f"inspector history ({target.cell})",
+                                      statement_timeout_s=target.settings.statement_timeout_s,
+                                      lock_timeout_s=target.settings.lock_timeout_s)
             except ValueError as e:
                 if target.url not in _invalid_warned:
                     _invalid_warned.add(target.url)
@@ -481,15 +515,15 @@ def _plant(outdir: Path, target: _Target) -> PlantDatabase | None:
     return plant
 
 
-def _send(outdir: Path, target: _Target, *, con: sqlite3.Connection | None = None) -> int | None:
+def _send(outdir: Path, plant: PlantDatabase, *, force: bool = False, con: sqlite3.Connection | None = None) -> int | None:
     """Flush the run folder's spool to the plant database; the rows sent, None when it could
-    not be reached (one warning line per outage, naming the database without its password)."""
-    plant = _plant(outdir, target)
-    if plant is None:
-        return None
+    not be reached (one warning line per episode, naming the database without its password).
+    Called by the sender thread only (and by nothing on an inspection's path). ``force``: try
+    even within ``retry_s`` of a failure (the last send of a run). ``con``: the sender's open
+    connection to the history."""
     with plant.lock:
-        if not plant.due():
-            return None  # down a moment ago: the row waits in the spool, nobody waits for the server
+        if not (force or plant.due()):
+            return None  # failed a moment ago: the rows wait in the spool for the next try
         try:
             sent = flush_spool(outdir, plant, con=con)
         except PlantUnavailable as e:
@@ -498,16 +532,163 @@ def _send(outdir: Path, target: _Target, *, con: sqlite3.Connection | None = Non
                 _warn(f"history: {e}; {left} inspection{'s wait' if left != 1 else ' waits'} in the spool of "
                       f"{Path(outdir) / HISTORY_FILE}, sent when it answers again")
             return None
+        except (sqlite3.Error, OSError) as e:  # the cell's own file: the next record says so too
+            if plant.failed():
+                _warn(f"history: {Path(outdir) / HISTORY_FILE}: the spool cannot be read ({e})")
+            return None
         if plant.succeeded():
             print(f"inspector: history: plant database {plant.label} answers again; {sent} spooled "
                   f"inspection{'s' if sent != 1 else ''} sent", file=sys.stderr, flush=True)
         return sent
 
 
+class _Sender:
+    """The thread that sends one run folder's spool to one plant database.
+
+    Fed by :meth:`nudge` (a bounded queue: when it is full the nudge is dropped, and nothing is
+    lost, since the row waits in the spool and the next send takes every spooled row). The
+    thread owns the connection: nothing on an inspection's path waits for the server. After a
+    failed send it tries again every ``retry_s`` (at least 1 s) while rows wait; idle (nothing
+    spooled) for :attr:`IDLE_EXIT_S`, or asked by :meth:`stop`, it closes the connection and
+    ends (the next nudge starts a new one).
+    """
+
+    #: Seconds without work after which the thread ends.
+    IDLE_EXIT_S = 60.0
+    _STOP = -1
+
+    def __init__(self, key: tuple[str, str], outdir: Path, plant: PlantDatabase, settings: HistorySettings) -> None:
+        self.key, self.outdir, self.plant, self.settings = key, Path(outdir), plant, settings
+        self.queue: queue.Queue[int] = queue.Queue(maxsize=settings.queue_size)
+        self.cond = threading.Condition()
+        self.posted = 0  # nudges given (dropped ones too) ...
+        self.handled = 0  # ... and how many of them a send attempt has covered since
+        self.stopping = False
+        self.thread = threading.Thread(target=self._main, name=f"history sender {plant.label}", daemon=True)
+
+    def nudge(self, rid: int = 0) -> None:
+        """A row was spooled (or may be waiting): send soon. Never blocks."""
+        with self.cond:
+            self.posted += 1
+        try:
+            self.queue.put_nowait(rid)
+        except queue.Full:
+            pass  # a send is due anyway, and it takes every spooled row
+
+    def stop(self) -> None:
+        """Send what waits once more, then end (:meth:`wait` for it)."""
+        with self.cond:
+            self.stopping = True
+            self.posted += 1
+        try:
+            self.queue.put_nowait(self._STOP)
+        except queue.Full:
+            pass  # the thread finds `stopping` set after the queued nudges
+
+    def wait(self, timeout_s: float, target: int | None = None) -> bool:
+        """Wait until every nudge posted so far (``target``: that many) was covered by a send
+        attempt, at most ``timeout_s``; whether it was."""
+        deadline = time.monotonic() + timeout_s
+        with self.cond:
+            goal = self.posted if target is None else target
+            while self.handled < goal and self.thread.is_alive():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self.cond.wait(min(left, 0.5))
+            return self.handled >= goal
+
+    def _main(self) -> None:
+        waiting = False  # rows left in the spool by a failed send
+        # Kept open while the thread runs: besides saving a connection per send, a history file
+        # that stays open is not checkpointed (WAL copied back, fsynced, deleted) each time the
+        # recording side closes its own connection, which halves what a row costs the line.
+        con: sqlite3.Connection | None = None
+        try:
+            while True:
+                period = max(self.settings.retry_s, 1.0) if waiting else self.IDLE_EXIT_S
+                try:
+                    self.queue.get(timeout=period)
+                except queue.Empty:
+                    if not waiting:
+                        with _lock, self.cond:  # idle: end, unless a nudge just came
+                            if self.queue.empty() and self.handled >= self.posted:
+                                _senders.pop(self.key, None)
+                                return
+                        continue
+                    # rows wait and no part came for `retry_s`: try again (below)
+                while True:  # every queued nudge is covered by the one send below
+                    try:
+                        self.queue.get_nowait()
+                    except queue.Empty:
+                        break
+                with self.cond:
+                    goal = self.posted
+                    stopping = self.stopping
+                if stopping or self.plant.due():
+                    if con is None and (self.outdir / HISTORY_FILE).is_file():
+                        try:
+                            con = _connect(self.outdir / HISTORY_FILE)
+                        except sqlite3.Error:
+                            con = None  # flush_spool opens its own, and says what is wrong
+                    sent = _send(self.outdir, self.plant, force=stopping, con=con)
+                    waiting = sent is None and spooled(self.outdir) > 0
+                # else: failed a moment ago; the rows wait in the spool for the next try (nothing
+                # is read here: a nudge per part must cost the line nothing while the server is out)
+                with self.cond:
+                    self.handled = max(self.handled, goal)
+                    self.cond.notify_all()
+                if stopping:
+                    with self.cond:
+                        if self.handled >= self.posted:
+                            return  # (the finally below leaves the registry)
+        finally:
+            if con is not None:
+                con.close()
+            with self.plant.lock:
+                self.plant.close()
+            with _lock:
+                if _senders.get(self.key) is self:
+                    _senders.pop(self.key, None)
+            with self.cond:
+                self.cond.notify_all()
+
+
+def _nudge(outdir: Path, target: _Target, rid: int = 0) -> _Sender | None:
+    """Nudge the running sender of the run folder and ``target.url``, started if there is none
+    (None for an invalid URL). Under the registry's lock, so that a sender ending for idleness
+    never takes a nudge with it."""
+    plant = _plant(outdir, target)
+    if plant is None:
+        return None
+    assert target.url is not None
+    key = (_key(outdir), target.url)
+    with _lock:
+        sender = _senders.get(key)
+        if sender is None or sender.stopping or not sender.thread.is_alive():
+            sender = _Sender(key, Path(outdir), plant, target.settings)
+            _senders[key] = sender
+            sender.thread.start()
+        sender.nudge(rid)
+        return sender
+
+
+def settle(outdir: Path, timeout_s: float = 30.0) -> int:
+    """Wait until the run folder's sender has tried to send every row spooled so far (sent, or
+    found the server unavailable), at most ``timeout_s``; the rows still in the spool. What a
+    test or a tool calls instead of sleeping; an inspection never does."""
+    key = _key(outdir)
+    with _lock:
+        senders = [s for (k, _), s in _senders.items() if k == key]
+    for sender in senders:
+        sender.wait(timeout_s)
+    return spooled(outdir)
+
+
 @hookimpl
 def inspector_register_settings(registry: SettingsRegistry) -> None:
     """``[plugins.history]``: the plant database (PostgreSQL) and the cell's name."""
-    registry.add(HistorySettings, "the plant database (a PostgreSQL URL) and this cell's name")
+    registry.add(HistorySettings, "the plant database (a PostgreSQL URL), its timeouts, and this cell's name")
 
 
 @hookimpl
@@ -517,7 +698,7 @@ def inspector_on_run_start(recipe: Recipe, outdir: Path, source: str) -> None:
         _settings[_key(outdir)] = settings if isinstance(settings, HistorySettings) else HistorySettings()
     target = _target(outdir)
     if target.url is not None and spooled(outdir):
-        _send(outdir, target)  # what an earlier run left in the spool
+        _nudge(outdir, target)  # what an earlier run left in the spool, sent in the background
 
 
 @hookimpl
@@ -526,13 +707,9 @@ def inspector_on_result(result: InspectionResult, outdir: Path | None) -> None:
         return
     run_dir = Path(outdir).parent
     target = _target(run_dir)
-    con = _connect(run_dir / HISTORY_FILE)
-    try:
-        record(result, run_dir, cell=target.cell, spool=target.url is not None, con=con)
-        if target.url is not None:
-            _send(run_dir, target, con=con)  # the spool, this row last
-    finally:
-        con.close()
+    rid = record(result, run_dir, cell=target.cell, spool=target.url is not None)
+    if target.url is not None:
+        _nudge(run_dir, target, rid)  # the row is in the spool: the line goes on, the sender sends it
 
 
 @hookimpl
@@ -540,13 +717,21 @@ def inspector_on_run_end(recipe: Recipe, outdir: Path, summary: RunSummary) -> N
     target = _target(outdir)
     if target.url is None:
         return
-    if spooled(outdir):
-        _send(outdir, target)
     with _lock:
-        plant = _plants.get((_key(outdir), target.url))
-    if plant is not None:  # the connection closes; its outage state stays for the next run
-        with plant.lock:
-            plant.close()
+        sender = _senders.get((_key(outdir), target.url))
+    if sender is None:
+        if not spooled(outdir):
+            return
+        sender = _nudge(outdir, target)
+        if sender is None:
+            return
+    sender.stop()  # one last send, then the connection closes (its outage state stays for the next run)
+    if not sender.wait(target.settings.flush_wait_s):
+        left = spooled(outdir)
+        if left:
+            _warn(f"history: plant database {mask_url(target.url)}: not answered within {target.settings.flush_wait_s:g} s "
+                  f"at the run's end; {left} inspection{'s wait' if left != 1 else ' waits'} in the spool of "
+                  f"{Path(outdir) / HISTORY_FILE} (sent by the next run, or by inspector history OUTDIR --send)")
 
 
 # --------------------------------------------------------------------------- inspector history
@@ -557,15 +742,24 @@ def add_parser(subparsers) -> None:
                                               "database, and the yield")
     p.add_argument("outdir", metavar="OUTDIR", nargs="?",
                    help="an inspector run --out folder (none: the plant database, --url or $" + URL_ENV + ")")
-    p.add_argument("--url", metavar="URL", help="the plant database, postgresql://USER@HOST[:PORT]/DATABASE (default $"
-                                                + URL_ENV + "; a password is better in $PGPASSWORD or ~/.pgpass)")
+    p.add_argument("--url", metavar="URL", help="the plant database, postgresql://USER@HOST[:PORT]/DATABASE (default: "
+                                                "--recipe's [plugins.history] url, else $" + URL_ENV
+                                                + "; a password is better in $PGPASSWORD or ~/.pgpass)")
+    p.add_argument("--recipe", metavar="RECIPE", help="take the plant database from this recipe's [plugins.history] url "
+                                                      "(as the run did) when --url is not given")
     p.add_argument("--cell", metavar="NAME", help="only the inspections of this cell")
     p.add_argument("--send", action="store_true", help="send OUTDIR's spooled inspections to the plant database now")
+    p.add_argument("--verify", action="store_true", help="check OUTDIR's hash chain: name the first inspection changed "
+                                                         "or removed since it was recorded (exit 1), else exit 0")
     p.add_argument("--last", type=int, metavar="N", help="only the last N inspections")
     p.add_argument("--json", action="store_true", help="the rows as JSON")
     p.add_argument("--plot", metavar="PNG", help="also draw the trend: each part's deviation range against its tolerance")
     p.add_argument("--cameras", metavar="PNG", help="also draw the calibration health: how far each camera was off (px) "
                                                     "in each inspection, against the flagging threshold")
+    p.add_argument("--shift", nargs="?", type=int, const=1, metavar="N",
+                   help="the current shift's counters (and the N-1 before it): yield, worst regions, errors by reason")
+    p.add_argument("--config", metavar="TOML", help="the cell's settings for --shift ([shifts]; default cell.toml in "
+                                                    "$INSPECTOR_CONFIG_DIR or ~/.config/inspector when present)")
 
 
 def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
@@ -718,10 +912,53 @@ def _fmt(x: Any, spec: str) -> str:
 
 
 def _url_of(args) -> tuple[str | None, str]:
-    """(the plant database's URL, where it came from) of ``inspector history``'s arguments."""
+    """(the plant database's URL, where it came from) of ``inspector history``'s arguments, in
+    this order: ``--url``; the ``--recipe``'s ``[plugins.history] url`` (what the run used);
+    ``$INSPECTOR_HISTORY_URL``. Raises RecipeError (one line naming the recipe) for a recipe
+    that cannot be read."""
     if args.url:
         return args.url, "--url"
+    if getattr(args, "recipe", None):
+        from inspector.recipe import load_recipe
+
+        recipe = load_recipe(args.recipe, args.plugin_manager)
+        settings = recipe.plugins.get("history")
+        if isinstance(settings, HistorySettings) and settings.url:
+            return settings.url, f"{args.recipe}: plugins.history.url"
     return os.environ.get(URL_ENV, "").strip() or None, URL_ENV
+
+
+def _verify_cmd(outdir: Path) -> int:
+    """``inspector history OUTDIR --verify``: 0 intact, 1 broken, 3 unreadable."""
+    path = outdir / HISTORY_FILE
+    if not path.is_file():
+        print(f"inspector: error: {path}: no history", file=sys.stderr)
+        return 3
+    try:
+        report = verify_history(outdir)
+    except InputError as e:
+        print(f"inspector: error: {e}", file=sys.stderr)
+        return 3
+    if not report.ok:
+        print(f"inspector: error: {path}: {report.summary()}", file=sys.stderr)
+        return 1
+    print(f"{path}: {report.summary()}")
+    return 0
+
+
+def verify_history(outdir: Path) -> ledger.ChainReport:
+    """The hash chain of ``outdir``'s inspections checked (:func:`inspector.ledger.verify`,
+    each row with its defects). InputError naming the file when it cannot be read."""
+    path = Path(outdir) / HISTORY_FILE
+    try:
+        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+        try:
+            return ledger.verify(con, "inspections", child=("defects", "inspection_id"),
+                                 describe=lambda r: f"capture {r.get('capture')}, {r.get('verdict')}")
+        finally:
+            con.close()
+    except sqlite3.Error as e:
+        raise InputError(f"{path}: cannot be read ({e})") from None
 
 
 def _send_now(outdir: Path, url: str) -> int:
@@ -742,6 +979,18 @@ def run(args) -> int:
     if args.last is not None and args.last < 1:
         print(f"inspector: error: --last: expected a number >= 1, got {args.last}", file=sys.stderr)
         return 2
+    if args.shift is not None:
+        if args.outdir is None:
+            print("inspector: error: --shift: give OUTDIR (its history.sqlite)", file=sys.stderr)
+            return 2
+        from inspector.shift import print_shifts
+
+        return print_shifts(args.outdir, shifts=args.shift, config=args.config)
+    if args.verify:
+        if args.outdir is None or args.send or args.url:
+            print("inspector: error: --verify: give OUTDIR only (its history.sqlite is checked)", file=sys.stderr)
+            return 2
+        return _verify_cmd(Path(args.outdir))
     url, source = _url_of(args)
     if url is not None and (args.send or args.outdir is None):
         try:
@@ -751,7 +1000,8 @@ def run(args) -> int:
             return 2
     if args.send:
         if args.outdir is None or url is None:
-            print(f"inspector: error: --send: give OUTDIR and the plant database (--url URL or ${URL_ENV})", file=sys.stderr)
+            print(f"inspector: error: --send: give OUTDIR and the plant database (--url URL, --recipe RECIPE with "
+                  f"[plugins.history] url, or ${URL_ENV})", file=sys.stderr)
             return 2
         if not (Path(args.outdir) / HISTORY_FILE).is_file():
             print(f"inspector: error: {Path(args.outdir) / HISTORY_FILE}: no history", file=sys.stderr)

@@ -5,11 +5,14 @@ PRECISION``, ``id`` an identity), with ``cell`` (which cell inspected) and ``uid
 given to the row when it was recorded, ``UNIQUE``); a column added since (:data:`PG_ADDED`)
 is added to an older plant database when a cell connects. Rows are inserted with ``ON CONFLICT
 (uid) DO NOTHING``, so a row sent twice (a spool flushed again after a crash between the
-server's commit and the spool's delete) is stored once, and its defects with it.
+server's commit and the spool's delete) is stored once, and its defects with it. ``chain`` is
+the row's link of the cell's hash chain (:mod:`inspector.ledger`): the plant database keeps a
+copy of it, out of the cell's reach.
 
 :class:`PlantDatabase` is one connection, kept open, with its outage state: a connection that
-fails raises :class:`PlantUnavailable`, and the caller (``plugins/history.py``) keeps the rows
-in its spool. Nothing here prints; nothing here imports ``psycopg`` until a connection is made,
+fails raises :class:`PlantUnavailable`, and the caller (``plugins/history.py``'s sender thread)
+keeps the rows in its spool. Its ``statement_timeout`` and ``lock_timeout`` are set when it
+opens, so a slow server or a locked table fails a call after seconds, as a server that is down. Nothing here prints; nothing here imports ``psycopg`` until a connection is made,
 so the plugin (and ``import inspector``) stays light. A URL is shown only through
 :func:`mask_url`: a password never reaches a log line or an error message.
 """
@@ -50,7 +53,8 @@ PG_SCHEMA = (
     extras TEXT,
     cell TEXT NOT NULL,
     uid TEXT NOT NULL UNIQUE,
-    calibration_json TEXT
+    calibration_json TEXT,
+    chain TEXT
 )""",
     "CREATE INDEX IF NOT EXISTS inspections_capture ON inspections (capture)",
     "CREATE INDEX IF NOT EXISTS inspections_part ON inspections (part_id)",
@@ -69,10 +73,10 @@ PG_SCHEMA = (
 #: The row columns (``id`` aside), in the order of ``history.sqlite`` and of :data:`PG_SCHEMA`.
 COLUMNS = ("inspected_at", "capture", "part_id", "triggered_at", "recipe", "verdict", "error", "n_points",
            "deviation_mean_mm", "deviation_min_mm", "deviation_max_mm", "n_defects", "worst_mm", "tolerance_lower_mm",
-           "tolerance_upper_mm", "total_s", "result_dir", "metadata", "extras", "cell", "uid", "calibration_json")
+           "tolerance_upper_mm", "total_s", "result_dir", "metadata", "extras", "cell", "uid", "calibration_json", "chain")
 #: Columns added to the plant tables since they were first made, with their type: a database
 #: made by an older version gets them when a cell connects (its older rows have NULL there).
-PG_ADDED = (("calibration_json", "TEXT"),)
+PG_ADDED = (("calibration_json", "TEXT"), ("chain", "TEXT"))
 DEFECT_COLUMNS = ("kind", "n_points", "worst_mm", "x", "y", "z", "region")
 
 _INSERT = (f"INSERT INTO inspections ({', '.join(COLUMNS)}) VALUES ({', '.join(['%s'] * len(COLUMNS))})"
@@ -170,15 +174,25 @@ class PlantDatabase:
         waiting for a server that does not answer.
     application_name : str
         What ``pg_stat_activity`` shows for the connection.
+    statement_timeout_s : float
+        Seconds any one statement may run on the server (PostgreSQL's ``statement_timeout``,
+        set on the connection): a server that is slow, not down, fails the send after this
+        long instead of holding it (the rows stay in the spool). 0: no limit.
+    lock_timeout_s : float
+        Seconds a statement may wait for a lock (``lock_timeout``): a ``LOCK TABLE`` held by
+        another session fails the send after this long. 0: no limit.
     """
 
     def __init__(self, url: str, *, connect_timeout_s: int = 3, retry_s: float = 30.0,
-                 application_name: str = "inspector history") -> None:
+                 application_name: str = "inspector history", statement_timeout_s: float = 10.0,
+                 lock_timeout_s: float = 3.0) -> None:
         check_url(url)
         self.url = url
         self.label = mask_url(url)
         self.connect_timeout_s = int(connect_timeout_s)
         self.retry_s = float(retry_s)
+        self.statement_timeout_s = float(statement_timeout_s)
+        self.lock_timeout_s = float(lock_timeout_s)
         self.application_name = application_name[:63]
         #: Held while the spool is flushed through this connection.
         self.lock = threading.RLock()
@@ -220,6 +234,10 @@ class PlantDatabase:
         except psycopg.Error as e:
             raise self._unavailable(e) from None
         try:
+            # Set before anything that may wait: the schema check below and every insert are
+            # bounded too (in ms; set_config takes a bound parameter, SET does not).
+            for name, seconds in (("statement_timeout", self.statement_timeout_s), ("lock_timeout", self.lock_timeout_s)):
+                conn.execute("SELECT set_config(%s, %s, false)", (name, str(max(0, round(1000 * seconds)))))
             exists = conn.execute("SELECT to_regclass('inspections') IS NOT NULL AND to_regclass('defects') IS NOT NULL")
             row = exists.fetchone()
             if not (row and row[0]):

@@ -177,8 +177,8 @@ def test_set_password_through_a_real_pipe(config, tmp_path):
                        env=env, timeout=120)
     assert p.returncode == 0, p.stderr
     assert roles.check_password(PASSWORD)
-    p = subprocess.run([sys.executable, "-c", script], input="1234567\n", text=True, capture_output=True,
-                       env=env, timeout=120)
+    p = subprocess.run([sys.executable, "-c", script], input=PASSWORD + "\n1234567\n", text=True, capture_output=True,
+                       env=env, timeout=120)  # the current password, then a new one too short
     assert p.returncode == 2
     assert "shorter than 8" in p.stderr and len(p.stderr.strip().splitlines()) == 1
     assert roles.check_password(PASSWORD)  # unchanged
@@ -359,3 +359,105 @@ def test_module_is_qt_free():
     src = Path(roles.__file__).read_text()
     for name in ("PySide6", "PyQt", "pyvista"):
         assert name not in src
+
+
+# --------------------------------------------------------------------------- a record you can trust (issue 27)
+
+
+def _sql(path: Path, *statements: str) -> None:
+    con = sqlite3.connect(path)
+    try:
+        for s in statements:
+            con.execute(s)
+        con.commit()
+    finally:
+        con.close()
+
+
+def test_set_password_needs_the_current_one_and_is_audited(config, fast_hash, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "stdin", io.StringIO(PASSWORD + "\n"))
+    assert roles_cli("roles", "set-password", "--who", "erin") == 0  # the first one: nothing to ask
+    monkeypatch.setattr(sys, "stdin", io.StringIO("not-the-password\nnew-password-1\n"))
+    assert roles_cli("roles", "set-password", "--who", "mallory") == 2
+    err = capsys.readouterr().err
+    assert "wrong engineer password; nothing changed" in err and len(err.strip().splitlines()) == 1
+    assert roles.check_password(PASSWORD) and not roles.check_password("new-password-1")
+    monkeypatch.setattr(sys, "stdin", io.StringIO(PASSWORD + "\nnew-password-1\n"))
+    assert roles_cli("roles", "set-password", "--who", "erin") == 0
+    assert roles.check_password("new-password-1")
+    rows = roles.read_audit(None)
+    assert [(r["action"], r["who"]) for r in rows] == [("password-set", "erin"), ("password-refused", "mallory"),
+                                                        ("password-set", "erin")]
+    assert roles.station_audit_file() == config / "audit.sqlite"
+    assert roles_cli("roles", "audit", "--verify") == 0
+    assert "chain intact: 3 rows from id 1" in capsys.readouterr().out
+
+
+def test_a_forgotten_password_is_reset_by_the_files_owner_and_the_reset_is_recorded(config, fast_hash, monkeypatch,
+                                                                                       capsys):
+    roles.set_password(PASSWORD)
+    monkeypatch.setattr(sys, "stdin", io.StringIO("recovered-password\n"))
+    assert roles_cli("roles", "set-password", "--reset", "--who", "admin") == 0
+    out = capsys.readouterr()
+    assert "reset without the current one; recorded in" in out.err and roles.check_password("recovered-password")
+    assert [r["action"] for r in roles.read_audit(None)] == ["password-reset"]
+    # someone who does not own roles.json (and is not root) may not
+    monkeypatch.setattr(os, "geteuid", lambda: 4242)
+    monkeypatch.setattr(sys, "stdin", io.StringIO("another-password\n"))
+    assert roles_cli("roles", "set-password", "--reset") == 2
+    assert "only the owner of" in capsys.readouterr().err and roles.check_password("recovered-password")
+
+
+def test_audit_verify_names_an_edited_or_removed_row(config, fast_hash, tmp_path, capsys):
+    roles.set_password(PASSWORD)
+    out = tmp_path / "out"
+    s = roles.RoleSession(out, clock=FakeClock())
+    for _ in range(3):
+        assert s.login_engineer(PASSWORD, "alice")
+        assert s.logout()
+    db = out / "history.sqlite"
+    assert roles_cli("roles", "audit", str(out), "--verify") == 0
+    assert "chain intact: 6 rows from id 1" in capsys.readouterr().out
+    _sql(db, "UPDATE audit SET who = 'bob' WHERE id = 3")  # alice -> bob
+    assert roles_cli("roles", "audit", str(out), "--verify") == 1
+    err = capsys.readouterr().err
+    assert "row id 3 (login by bob) was changed after it was written" in err and len(err.strip().splitlines()) == 1
+    _sql(db, "UPDATE audit SET who = 'alice' WHERE id = 3")
+    assert roles_cli("roles", "audit", str(out), "--verify") == 0
+    capsys.readouterr()
+    _sql(db, "DELETE FROM audit WHERE id IN (4, 5)")
+    assert roles_cli("roles", "audit", str(out), "--verify") == 1
+    assert "2 rows removed before row id 6 (logout by alice): ids 4 to 5 missing" in capsys.readouterr().err
+    assert roles_cli("roles", "audit", str(tmp_path / "nothing"), "--verify") == 3
+
+
+def test_an_older_audit_table_is_rebuilt_with_its_rows_and_the_chain_starts_after(config, fast_hash, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    old = roles.AUDIT_SCHEMA.replace(",\n    chain TEXT", "")
+    old = old[:old.index("CHECK (")] + "CHECK (action IN ('login', 'logout', 'idle-logout', 'login-refused', " \
+        "'recipe-change')),\n" + old[old.index("    role_before"):]
+    _sql(out / "history.sqlite", *[s for s in old.split(";") if s.strip()],
+         "INSERT INTO audit (at, who, action) VALUES ('2026-01-01T00:00:00+00:00', 'carl', 'login')",
+         "INSERT INTO audit (at, who, action) VALUES ('2026-01-01T00:01:00+00:00', 'carl', 'logout')")
+    roles.record_audit(out, "unapproved-run", who="dora", role_before="operator", role_after="operator")
+    rows = roles.read_audit(out)
+    assert [(r["id"], r["who"], r["action"]) for r in rows] == [(1, "carl", "login"), (2, "carl", "logout"),
+                                                                (3, "dora", "unapproved-run")]
+    report = roles.verify_audit(out)
+    assert report.ok and report.unchained == 2 and report.first_id == 3
+    assert roles_cli("roles", "audit", str(out), "--verify") == 0
+    assert "the 2 rows before id 3 were written before the chain" in capsys.readouterr().out
+
+
+def test_production_mode_needs_the_engineer_password(config, fast_hash, monkeypatch, capsys):
+    assert roles_cli("roles", "production") == 0 and "production mode is off" in capsys.readouterr().out
+    monkeypatch.setattr(sys, "stdin", io.StringIO("whatever-it-is\n"))
+    assert roles_cli("roles", "production", "on") == 2  # no password set: locked
+    assert "no engineer password is set" in capsys.readouterr().err and not roles.production_mode()
+    roles.set_password(PASSWORD)
+    monkeypatch.setattr(sys, "stdin", io.StringIO("wrong-password\n"))
+    assert roles_cli("roles", "production", "on") == 2 and not roles.production_mode()
+    monkeypatch.setattr(sys, "stdin", io.StringIO(PASSWORD + "\n"))
+    assert roles_cli("roles", "production", "on", "--who", "erin") == 0 and roles.production_mode()
+    assert [r["action"] for r in roles.read_audit(None)] == ["password-refused", "production-on"]
