@@ -9,9 +9,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from inspector.kernels.axis import TurnZone
 
 __all__ = ["Reference"]
 
@@ -110,3 +113,30 @@ class Reference:
     def to_reference_frame(self, points: np.ndarray, pose: np.ndarray) -> np.ndarray:
         """World points (N, 3) -> reference frame, using ``pose`` (reference -> world)."""
         return (np.asarray(points, float) - pose[:3, 3]) @ pose[:3, :3]
+
+    @cached_property
+    def _turn_zones(self) -> dict[tuple[bytes, bytes], TurnZone]:
+        return {}
+
+    def turn_zone(self, axis: np.ndarray, centre: np.ndarray) -> TurnZone:
+        """Where a turn about (``axis``, ``centre``) can change the distance to the reference
+        (:func:`~inspector.kernels.axis.turn_zone`).
+
+        Parameters
+        ----------
+        axis, centre : (3,) float
+            Unit axis and a point on it, reference frame, mm.
+
+        Returns
+        -------
+        TurnZone
+            Built on first use for that axis (40-85 ms) and kept with the reference: it
+            depends on the reference alone, so every part of a batch shares it.
+        """
+        from inspector.kernels.axis import turn_zone
+
+        key = (np.asarray(axis, float).tobytes(), np.asarray(centre, float).tobytes())
+        zones = self._turn_zones
+        if key not in zones:
+            zones[key] = turn_zone(self.distance.near, self.vertices, axis, centre)
+        return zones[key]

@@ -413,7 +413,8 @@ def test_refine_axis_turns_get_a_shaft_out_of_a_ten_degree_minimum():
 
 
 def test_axis_turns_only_for_a_reference_with_one_axis_of_near_symmetry():
-    from inspector.kernels.registration import _Reference, _axis_turns
+    from inspector.kernels.axis import axis_turns as _axis_turns
+    from inspector.kernels.rigid import RefMesh as _Reference
 
     shaft, _ = _shaft_contour_points()
     box = trimesh.creation.box((26.0, 20.0, 14.0))
@@ -455,7 +456,7 @@ def _turn_z(deg: float) -> np.ndarray:
 
 
 def test_scan_finds_a_flange_s_own_symmetries_and_its_geometric_axis():
-    from inspector.kernels.registration import scan_about_axis
+    from inspector.kernels.axis import scan_about_axis
 
     disc = _disc(4)
     pts, _ = trimesh.sample.sample_surface(disc, 6000, seed=1)
@@ -491,8 +492,8 @@ def test_axis_scan_recovers_a_keyed_disc_turned_far_about_its_axis():
 def test_hull_points_veto_turns_that_put_the_reference_out_of_the_hull():
     """Hull points on a disc with four holes: turns by 90 degrees keep the reference inside
     the hull, 45 degrees puts it into the holes' space."""
+    from inspector.kernels.axis import scan_about_axis
     from inspector.kernels.meshdist import MeshDistance
-    from inspector.kernels.registration import scan_about_axis
 
     disc = _disc(4)
     V, F = np.asarray(disc.vertices), np.asarray(disc.faces)
@@ -508,7 +509,7 @@ def test_pose_confidence_tells_a_keyed_part_from_an_unpinned_one():
     """At the true pose of the keyed disc the runner-up turn (a quarter turn: the holes
     match, the notch does not) fits clearly worse; the plain disc's quarter turns are its
     own symmetries, not runner-ups; face points away from holes and notch pin nothing."""
-    from inspector.kernels.registration import pose_confidence, scan_about_axis
+    from inspector.kernels.axis import pose_confidence, scan_about_axis
 
     keyed = _disc(4, notch=True)
     P, fi = trimesh.sample.sample_surface(keyed, 20000, seed=4)
@@ -530,8 +531,8 @@ def test_pose_confidence_tells_a_keyed_part_from_an_unpinned_one():
 def test_turn_zone_marks_only_where_a_turn_changes_the_distance():
     """A Ø20 shaft with a notch on one side over z in [-5, 5]: a turn about its axis changes
     the distance only near the notch's heights and radii; the plain shaft has no such zone."""
+    from inspector.kernels.axis import turn_zone
     from inspector.kernels.meshdist import MeshDistance
-    from inspector.kernels.registration import turn_zone
 
     shaft = trimesh.creation.cylinder(radius=10.0, height=40.0, sections=128)
     notch = trimesh.creation.box((4.0, 6.0, 10.0))
