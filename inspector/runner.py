@@ -5,6 +5,9 @@ reason; the batch goes on. A capture cancelled between two stages (``should_abor
 verdict ``"aborted"``: nothing is written for it, no ``inspector_on_result`` is called, and
 the batch stops there. Unexpected exceptions (bugs) are reported the same way, with the
 traceback written to ``traceback.txt`` in that capture's result folder, never to the user.
+A stage that raises :class:`~inspector.errors.RecipeError` says the recipe cannot run on
+that capture at all (evaluate's ``min_cameras`` above its rig's cameras): the batch ends
+with it, as for an invalid recipe (exit 2), and nothing is written for that capture.
 
 What a stage returns is checked (:func:`check_output`): a context whose output for the
 stage's kind (:data:`inspector.registry.OUTPUTS`) is set and of its type; otherwise the
@@ -33,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from inspector.errors import InspectorError, StageError
+from inspector.errors import InspectorError, RecipeError, StageError
 from inspector.manager import PluginManager
 from inspector.model import (SUMMARY_FIELDS, Alignment, BcpsPoints, Capture, DeviationStats, Evaluation,
                              EvaluationSummary, InspectionResult, Reconstruction, Silhouette)
@@ -172,6 +175,10 @@ def inspect_capture(
             err = StageError(f"{step.name}: {what}; the part is given up, the cell goes on")
             hooks.add(pm.on_stage_error(ctx, step.spec, step.name, err))
             return failed(str(err))
+        except RecipeError:
+            # The recipe cannot run on this capture's rig (evaluate's min_cameras above its
+            # cameras): refused like any invalid recipe (exit 2), never a made-up verdict.
+            raise
         except Exception as exc:  # noqa: BLE001 - one capture must never stop the batch
             timings[step.name] = time.perf_counter() - t0
             hooks.add(pm.on_stage_error(ctx, step.spec, step.name, exc))

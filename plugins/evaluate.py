@@ -20,6 +20,13 @@ warning names it, and a defect must stand on points that do not rest on a flagge
 (``min_points`` of them, from ``min_cameras`` cameras) to reject the part; one that stands
 only with them is kept aside in ``stats.unconfirmed_defects`` and the verdict is ``error``
 naming the camera, never a fail (or a pass) on that camera's word.
+
+Parameters that make a rejection impossible are refused, never run silently (issue 27):
+``min_cameras`` above the rig's cameras, or ``min_points`` above the most points the rig's
+images can give (one per pixel edge: :meth:`EvaluateParams.rig_problem`), stop the run when a
+capture of that rig is inspected (a RecipeError, exit 2: nothing is written for it; ``inspector
+recipe check --rig RIG.json`` says so before any run); ``min_points`` above the points measured
+on one part makes that part's verdict ``error`` (it could not have been rejected), not a pass.
 """
 
 from __future__ import annotations
@@ -30,9 +37,10 @@ from typing import Any
 import numpy as np
 
 from inspector import hookimpl
+from inspector.errors import RecipeError
 from inspector.kernels.bcps import confidence
 from inspector.kernels.deviation import cluster_points, deviation_stats
-from inspector.model import Defect, DeviationStats, Evaluation, EvaluationSummary, RegionSummary
+from inspector.model import Defect, DeviationStats, Evaluation, EvaluationSummary, RegionSummary, Rig
 from inspector.params import param
 from inspector.pipeline import InspectionContext
 from inspector.registry import StageRegistry, StageSpec
@@ -70,8 +78,34 @@ class EvaluateParams:
         64, "calibration health: contour rays checked per camera, evenly spaced along its contour (the cost grows "
         "with them: 16 cameras x 64 rays, about 11 ms per part on 2 cores)", min=8, max=100_000)
 
+    def rig_problem(self, rig: Rig) -> str | None:
+        """Why these parameters could never reject a part measured with ``rig``, in one line
+        naming the key and the rig; None when a rejection is possible.
+
+        A defect needs ``min_cameras`` cameras' contours and ``min_points`` points. Each BCPS
+        point comes from one contour point, and marching squares puts at most one contour
+        point on each pixel edge of an image: a ``w`` x ``h`` camera gives at most
+        ``(w - 1) h + w (h - 1)`` points, a bound no part can exceed (real parts give a few
+        thousand per camera).
+        """
+        n = len(rig)
+        if n == 0:
+            return None  # no rig to judge by (a context built by hand)
+        if self.min_cameras > n:
+            return (f"min_cameras = {self.min_cameras} but the rig has {n} cameras: no defect could ever reject a part "
+                    f"(it must lie on {self.min_cameras} cameras' contours); set min_cameras to at most {n}")
+        most = sum((c.width - 1) * c.height + c.width * (c.height - 1) for c in rig.cameras)
+        if self.min_points > most:
+            sizes = sorted({f"{c.width}x{c.height}" for c in rig.cameras})
+            return (f"min_points = {self.min_points} but the rig's {n} cameras ({', '.join(sizes)} px) can give at most "
+                    f"{most} points (one per pixel edge): no defect could ever reject a part; lower min_points")
+        return None
+
 
 def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
+    why = p.rig_problem(ctx.capture.rig)
+    if why is not None:  # the recipe, not the part: the run is refused (exit 2), no verdict is made up
+        raise RecipeError(f"capture '{ctx.capture.name}': evaluate.tolerance {why}")
     sel = ctx.need("bcps", "evaluate")
     pose = ctx.need("alignment", "evaluate").pose
     ref = ctx.need("reference", "evaluate")
@@ -191,6 +225,10 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
                          f"{'s' if len(c) == 1 else ''} with the other cameras"} for d, c in resting]
         if not defects and error is None:
             verdict, error = "error", why
+    if verdict == "pass" and n < p.min_points:
+        # Not a pass: no defect of this part could have reached min_points.
+        verdict, error = "error", (f"min_points = {p.min_points} is more than the {n} points measured on this part: "
+                                   "no defect could reject it; lower min_points")
     if unconfirmed:
         stats["unconfirmed_defects"] = unconfirmed
     return ctx.evolve(evaluation=Evaluation(verdict, stats, tuple(defects), out, summary=summary, error=error))

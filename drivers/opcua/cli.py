@@ -24,7 +24,7 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(subparsers: Any) -> None:
     p = subparsers.add_parser(
-        "serve", help="an OPC UA server a PLC triggers: PartId, Trigger -> Verdict, ResultCounter (see the README)",
+        "serve", help="an OPC UA server a PLC triggers: PartId, Trigger -> Verdict, ResultCounter (see docs/opcua.md)",
         description="Serve RECIPE over OPC UA: each trigger from the PLC acquires and inspects one part with the "
                     "recipe's driver; results and history rows go to OUTDIR as with `inspector run`.")
     p.add_argument("recipe", nargs="?", metavar="RECIPE", help="the recipe served first")

@@ -1,7 +1,7 @@
 """The OPC UA information model of ``inspector serve``: what a PLC reads, writes and calls.
 
 Plain data (no asyncua import): the server builds its address space from these tables, the
-README's table is checked against them (``tests/drivers/test_opcua.py``), and a client can
+docs/opcua.md's table is checked against them (``tests/drivers/test_opcua.py``), and a client can
 import them for the node names.
 
 Every node is a child of one object, ``Objects/Inspector``, in the namespace :data:`NAMESPACE`
@@ -54,7 +54,7 @@ class Variable:
     access : str
         ``"rw"``: the PLC writes it (an input); ``"r"``: only the server does.
     group : str
-        ``input``, ``state``, ``result`` or ``recipe`` (the README's grouping).
+        ``input``, ``state``, ``result`` or ``recipe`` (the manual's grouping).
     doc : str
         What it means, one sentence or two (also the node's Description).
     initial : object
@@ -123,11 +123,15 @@ VARIABLES: tuple[Variable, ...] = (
              "empty when all went well.", ""),
     Variable("LastResult", "String", "r", "result",
              "The result as JSON (counter, part_id, capture, verdict, error, recipe, cycle_s, run_s (Session.run), "
-             "inspection_s (the stages), worst_deviation_mm, defect_count, defects (at most 10), result_dir, "
-             "triggered_at, calibration: {flagged, off_px per camera} or null).", "{}"),
+             "inspection_s (the stages), worst_deviation_mm, defect_count, defects (at most 10), result_dir (the "
+             "result folder's name, relative to the server's --out folder: no server path is shown to any reader), "
+             "triggered_at, calibration: {flagged, off_px per camera} or null; recovered: true when a restart "
+             "published it again).", "{}"),
     Variable("ResultCounter", "UInt32", "r", "result",
              "+1 for every accepted trigger, written after the result's other variables (so a PLC polling it "
-             "never reads a stale verdict); 0 at server start, wraps at 2^32.", 0),
+             "never reads a stale verdict); wraps at 2^32. Kept across restarts (the result folder's journal): a "
+             "restart publishes the last result again under its counter, or, when a part was in progress, that "
+             "part's result (aborted if none was written) under the next.", 0),
     # -- recipes ------------------------------------------------------------------------------
     Variable("Recipes", "String[]", "r", "recipe", "The recipe names RecipeName may take.", []),
 )
@@ -162,7 +166,7 @@ def variable(name: str) -> Variable:
 
 
 def markdown_table() -> str:
-    """The information model as the README's Markdown table (one row per node)."""
+    """The information model as the manual's Markdown table (docs/opcua.md) (one row per node)."""
     rows = ["| node | type | access | meaning |", "|---|---|---|---|"]
     for v in VARIABLES:
         rows.append(f"| `{v.name}` | {v.type} | {'read/write' if v.access == 'rw' else 'read'} | {v.doc} |")

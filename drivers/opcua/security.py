@@ -30,7 +30,8 @@ from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
 from inspector.errors import RecipeError
 from inspector_drivers.opcua.config import CLIENT_CERT, CLIENT_KEY, SERVER_CERT, SERVER_KEY, TRUSTED, Credentials
 
-__all__ = ["SERVER_URI", "CLIENT_URI", "make_pki", "make_certificate", "UserManager", "Rules", "validator"]
+__all__ = ["SERVER_URI", "CLIENT_URI", "make_pki", "make_certificate", "UserManager", "Rules", "validator",
+           "check_logins_off_the_loop"]
 
 #: The server's application URI (in its certificate's subject alternative names).
 SERVER_URI = "urn:inspector-bcps:opcua:server"
@@ -94,8 +95,8 @@ class LoginThrottle:
     :attr:`first_s` and doubles with each failure up to :attr:`most_s`; a success clears the
     name's record. All names together have the same rule with :attr:`free_all` failures (a
     guesser trying many names). So a guessing client gets a handful of checks a minute instead
-    of 48 in 6.4 s, and the PBKDF2 check (about 0.1 s, which asyncua runs on the server's event
-    loop: reads were delayed up to 677 ms) runs at most once per back-off.
+    of 48 in 6.4 s, and the PBKDF2 check (about 0.1 s, in a worker thread:
+    :func:`check_logins_off_the_loop`) runs at most once per back-off.
     """
 
     free = 3
@@ -131,29 +132,66 @@ class LoginThrottle:
         self._until.pop(self._key(user), None)
 
 
+def _login_key(username: str | None, password: Any) -> bytes:
+    """A digest of (user, password): what the verdicts of password checks are kept under."""
+    import hashlib
+
+    pw = password.encode("utf-8") if isinstance(password, str) else bytes(password or b"")
+    return hashlib.sha256((username or "").encode("utf-8") + b"\0" + pw).digest()
+
+
 class UserManager:
     """asyncua's user manager: anonymous, or the configured user with the right password;
-    failed logins slowed (:class:`LoginThrottle`)."""
+    failed logins slowed (:class:`LoginThrottle`).
+
+    The PBKDF2 check (about 0.1 s) never runs on the server's event loop: asyncua asks
+    :meth:`get_user` synchronously, from the loop, so :func:`check_logins_off_the_loop` makes
+    the server call :meth:`precheck` first, which runs the check in a worker thread (one at a
+    time, the throttle asked before each) and keeps its verdict; :meth:`get_user` then only
+    reads it. Reads, subscriptions and the PLC's triggers go on while a password is checked.
+    """
 
     def __init__(self, creds: Credentials | None, log: Any = None, throttle: LoginThrottle | None = None) -> None:
         self._creds = creds
         self._log = log
         self._ok: set[bytes] = set()  # digests of accepted (user, password): PBKDF2 once per password
+        #: Verdicts of checks made off the loop by :meth:`precheck`, each read once by get_user.
+        self._checked: dict[bytes, bool] = {}
+        self._one_check: Any = None  # an asyncio.Lock, made on the loop: one check at a time
         self.throttle = throttle or LoginThrottle()
+
+    async def precheck(self, username: str | None, password: Any) -> None:
+        """Check ``password`` in a worker thread and keep the verdict for :meth:`get_user`
+        (called on the event loop before the session is activated). Nothing is checked while
+        the throttle holds the name back, or for a password accepted before."""
+        import asyncio
+
+        if self._creds is None or username is None or password is None:
+            return
+        if self._one_check is None:
+            self._one_check = asyncio.Lock()
+        async with self._one_check:  # parallel guesses wait here, then meet the throttle
+            key = _login_key(username, password)
+            if key in self._ok or key in self._checked or self.throttle.blocked_s(username) > 0:
+                return
+            if len(self._checked) > 64:  # verdicts of logins whose connection went away
+                self._checked.clear()
+            self._checked[key] = await asyncio.to_thread(self._creds.check, username, password)
 
     def get_user(self, iserver: Any, username: str | None = None, password: Any = None, certificate: Any = None) -> User | None:
         if username is None and password is None:
             return User(role=UserRole.Anonymous)
-        import hashlib
-
+        key = _login_key(username, password)
+        verdict = self._checked.pop(key, None)  # read once, whatever happens next
         wait = self.throttle.blocked_s(username)
         if wait > 0:
             if self._log is not None:
                 self._log(f"login refused: user {username!r} (too many failed logins: wait {wait:.0f} s)")
             return None
-        pw = password.encode("utf-8") if isinstance(password, str) else bytes(password or b"")
-        key = hashlib.sha256((username or "").encode("utf-8") + b"\0" + pw).digest()
-        if self._creds is not None and (key in self._ok or self._creds.check(username, password)):
+        if self._creds is not None and key not in self._ok and verdict is None:
+            # Not checked ahead (a login the server's hook did not see): checked here, on the loop.
+            verdict = self._creds.check(username, password)
+        if self._creds is not None and (key in self._ok or verdict):
             self._ok.add(key)
             self.throttle.succeeded(username)
             return User(role=UserRole.User, name=username)
@@ -161,6 +199,63 @@ class UserManager:
         if self._log is not None:
             self._log(f"login refused: user {username!r} (wrong user or password)")
         return None  # BadUserAccessDenied
+
+
+_PRECHECK = "_inspector_precheck"
+
+
+def check_logins_off_the_loop(iserver: Any, users: UserManager) -> None:
+    """Make the asyncua server of ``iserver`` check passwords in a worker thread.
+
+    asyncua handles an ActivateSession request synchronously on the event loop, and calls
+    the user manager from there: a PBKDF2 check (0.1 s; a guesser's stream of them) held
+    every other client's reads for as long. asyncua offers no asynchronous user manager, so
+    the request handler of its message processor is wrapped (once per process; for the
+    servers marked here only, every other server is left as it was): before an
+    ActivateSession request carrying a user name is handled, its token is read from a copy of
+    the message and :meth:`UserManager.precheck` awaited, so the synchronous handling that
+    follows finds the verdict ready. Anything unexpected in that look-ahead is ignored: the
+    request is then handled as before (checked on the loop), never refused for it.
+    """
+    from asyncua.server import uaprocessor
+
+    setattr(iserver, _PRECHECK, users.precheck)
+    cls = uaprocessor.UaProcessor
+    if getattr(cls.process_message, "_inspector_wrapped", False):
+        return
+    original = cls.process_message
+
+    async def process_message(self: Any, seqhdr: Any, body: Any) -> Any:
+        precheck = getattr(self.iserver, _PRECHECK, None)
+        if precheck is not None and self.session is not None:
+            try:
+                await _look_ahead(self, body, precheck)
+            except Exception:  # noqa: BLE001 - the request is handled as usual, its password checked there
+                pass
+        return await original(self, seqhdr, body)
+
+    process_message._inspector_wrapped = True  # type: ignore[attr-defined]
+    cls.process_message = process_message  # type: ignore[method-assign]
+
+
+async def _look_ahead(processor: Any, body: Any, precheck: Any) -> None:
+    """If ``body`` is an ActivateSession request with a user name token, await ``precheck``
+    of its user and (decrypted) password. ``body`` is read through a copy: it is left as it was."""
+    import asyncio
+
+    from asyncua.ua.ua_binary import nodeid_from_binary, struct_from_binary
+
+    buf = body.copy()
+    if nodeid_from_binary(buf) != ua.NodeId(ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary):
+        return
+    struct_from_binary(ua.RequestHeader, buf)
+    params = struct_from_binary(ua.ActivateSessionParameters, buf)
+    token = params.UserIdentityToken
+    if not isinstance(token, ua.UserNameIdentityToken):
+        return
+    # The RSA decryption is the same asyncua does next (a millisecond): off the loop too.
+    username, password = await asyncio.to_thread(processor.iserver.decrypt_user_token, processor.session, token)
+    await precheck(username, password)
 
 
 class Rules(SimpleRoleRuleset):

@@ -24,6 +24,16 @@ subscriptions and refusals while ``Busy``. The handshake:
 
 A client that disconnects changes nothing: the cycle goes on and its result is published;
 a client that reconnects reads the same state as every other.
+
+Crash recovery (:mod:`inspector_drivers.opcua.journal`): every cycle is journaled in the
+result folder, and a server started again after a kill reconciles what the kill left before
+it listens: a written result gets the history row it lacked and is published; a part killed
+before its result was written is published ``aborted`` (its hidden ``.NAME.partial`` folder
+removed), so the PLC triggers it again; otherwise the last result is published again.
+``ResultCounter`` goes on from the journal's. The first trigger after such a restart with the
+PartId of the recovered result is recognised as the PLC's re-trigger of that part: its
+result is published again (``LastResult`` ``recovered``: true), not a second inspection, so
+no ``PartId-2`` folder and no second history row.
 """
 
 from __future__ import annotations
@@ -52,7 +62,9 @@ from inspector.registry import Acquisition
 from inspector.session import Inspected, Session, Source, Warned
 from inspector_drivers.opcua import model
 from inspector_drivers.opcua.config import ServerSettings, credentials, parse_endpoint, pki_files
-from inspector_drivers.opcua.security import SERVER_URI, Rules, UserManager, quiet_library_logs, validator
+from inspector_drivers.opcua.journal import Journal, lock_outdir, result_from_json
+from inspector_drivers.opcua.security import (SERVER_URI, Rules, UserManager, check_logins_off_the_loop,
+                                              quiet_library_logs, validator)
 
 __all__ = ["InspectorServer", "ServerThread", "part_id_problem"]
 
@@ -114,9 +126,11 @@ class _PartIdDriver:
     history), and the PartId and trigger time in its metadata (``capture.json``'s
     ``part_id`` and ``timestamp``: the history's ``part_id`` and ``triggered_at``)."""
 
-    def __init__(self, inner: Any, job: Callable[[], _Job | None]) -> None:
+    def __init__(self, inner: Any, job: Callable[[], _Job | None],
+                 named: Callable[[str, str, str], None] = lambda name, part_id, at: None) -> None:
         self._inner = inner
         self._job = job
+        self._named = named  # the journal: the capture's name, before it is loaded and inspected
         #: Set by the session (``Session._hand_off``): whether a name is taken downstream.
         self.taken: Callable[[str], bool] = lambda name: False
 
@@ -134,6 +148,7 @@ class _PartIdDriver:
             part_id = job.part_id if job is not None else ""
             at = job.triggered_at if job is not None else _now()
             name = self._free(part_id) if part_id else acq.name
+            self._named(name, part_id, at)
             yield Acquisition(name, lambda acq=acq, name=name, part_id=part_id, at=at: self._load(acq, name, part_id, at))
 
     def _free(self, part_id: str) -> str:
@@ -216,6 +231,10 @@ class InspectorServer:
         self._busy = False
         self._state = "Ready"
         self._counter = 0
+        self._journal = Journal(self.outdir)
+        self._lock_file: Any = None
+        #: (PartId, record) of a result a restart recovered: its re-trigger is recognised.
+        self._recovered: tuple[str, dict[str, Any]] | None = None
         self._task: asyncio.Task[None] | None = None
         self._executor = ThreadPoolExecutor(1, thread_name_prefix="inspector-opcua")
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -236,7 +255,7 @@ class InspectorServer:
             driver = _open(params)
             if hasattr(driver, "taken"):  # a hot folder names captures after its folders
                 return driver
-            return _PartIdDriver(driver, lambda: self._job)
+            return _PartIdDriver(driver, lambda: self._job, self._journal_named)
 
         driver = dataclasses.replace(session.recipe.driver, spec=dataclasses.replace(spec, open=opened))
         session.recipe = dataclasses.replace(session.recipe, driver=driver)
@@ -263,8 +282,11 @@ class InspectorServer:
         """Build the address space and listen (InspectorError when the port cannot be bound)."""
         quiet_library_logs()
         self._loop = asyncio.get_running_loop()
-        server = Server(user_manager=UserManager(self._creds, self.log))
+        self._lock_file = lock_outdir(self.outdir)  # one server per result folder: one journal
+        users = UserManager(self._creds, self.log)
+        server = Server(user_manager=users)
         await server.init()
+        check_logins_off_the_loop(server.iserver, users)  # PBKDF2 in a worker thread: reads go on
         server.set_endpoint(self.endpoint)
         server.set_server_name("Inspector")
         await server.set_application_uri(SERVER_URI)
@@ -305,11 +327,15 @@ class InspectorServer:
         server.subscribe_server_callback(CallbackType.PreWrite, self._pre_write)
         if self._warm_up:
             self.warm_up_s = await self._loop.run_in_executor(self._executor, self._warm)
+        self._server = server  # for _set: the recovered result is published before anyone connects
+        counter, rec = await self._loop.run_in_executor(self._executor, self._recover)
+        if rec is not None:
+            await self._publish(rec, counter=counter)
         try:
             await server.start()
         except OSError as e:
+            self._server = None
             raise InspectorError(f"cannot listen on {self.endpoint}: {e.strerror or e}") from None
-        self._server = server
 
     async def stop(self) -> None:
         """Cancel the cycle in progress (verdict aborted), stop listening, close the driver."""
@@ -326,6 +352,9 @@ class InspectorServer:
         loop = asyncio.get_running_loop()
         await loop.run_in_executor(self._executor, self._session.close)
         self._executor.shutdown(wait=False)
+        if self._lock_file is not None:
+            self._lock_file.close()
+            self._lock_file = None
 
     async def _set(self, name: str, value: Any) -> None:
         """Write variable ``name`` (server side: no permission check, subscribers notified)."""
@@ -404,6 +433,7 @@ class InspectorServer:
         self._busy = True
         job = _Job(part_id, _now(), time.perf_counter())
         self._job = job
+        await self._journaled(self._journal.accepted, part_id, job.triggered_at)  # before the PLC hears Good
         await self._set("ErrorText", "")
         if via == "StartSingleJob":
             await self._set("PartId", part_id)
@@ -416,8 +446,12 @@ class InspectorServer:
 
     async def _single(self, job: _Job) -> None:
         assert self._loop is not None
+        recovered, self._recovered = self._recovered, None  # only the first trigger after a restart
         try:
-            rec, failed = await self._loop.run_in_executor(self._executor, self._run_single, job)
+            if recovered is not None and job.part_id and job.part_id == recovered[0]:
+                rec, failed = await self._republish(job, recovered[1]), False
+            else:
+                rec, failed = await self._loop.run_in_executor(self._executor, self._run_single, job)
         except BaseException as e:  # noqa: BLE001 - a result is published whatever happens
             rec, failed = self._error_record(job, f"internal error {type(e).__name__}: {_one_line(e)}"), True
         rec["cycle_s"] = time.perf_counter() - job.t0
@@ -426,6 +460,102 @@ class InspectorServer:
         await self._set_state("Error" if failed else "Ready", busy=False)
         self._job = None
         self._busy = False  # last: until here a trigger is refused, never mixed into this end
+
+    async def _republish(self, job: _Job, rec: dict[str, Any]) -> dict[str, Any]:
+        """The PLC's re-trigger of the part a restart recovered: that result again, not a
+        second inspection (no ``PartId-2``, no second history row)."""
+        capture = rec.get("capture") or ""
+        await self._journaled(self._journal.named, capture, job.part_id, job.triggered_at)
+        self.log(f"{printable(job.part_id)}: the re-trigger of the part inspected before the restart: its result "
+                 f"({rec.get('verdict')}, {printable(capture)}) published again, not inspected twice")
+        return {k: v for k, v in rec.items() if k not in ("counter", "cycle_s")} | {"recovered": True}
+
+    def _public(self, text: str | None) -> str | None:
+        """``text`` (an error) with the result folder's path on the server made relative to it:
+        ``ErrorText`` and ``LastResult`` are read by anonymous clients too, and show no server path."""
+        if not text:
+            return text
+        for root in sorted({str(self.outdir.resolve()), str(self.outdir.absolute())}, key=len, reverse=True):
+            text = text.replace(root + os.sep, "").replace(root, ".")
+        return text
+
+    # -- the journal ----------------------------------------------------------------------------
+    async def _journaled(self, write: Callable[..., None], *args: Any) -> None:
+        """A journal write, in a helper thread (the loop stays free); a failure (a full disk)
+        is one warning: the cycle goes on, only its recovery after a crash is at stake."""
+        try:
+            await asyncio.to_thread(write, *args)
+        except OSError as e:
+            self.log(f"warning: {self._journal.path}: not written ({e.strerror or e}); a crash now would not be "
+                     "reconciled at the next start")
+
+    def _journal_named(self, capture: str, part_id: str, at: str) -> None:
+        """The driver named the capture (worker thread)."""
+        try:
+            self._journal.named(capture, part_id, at)
+        except OSError as e:
+            self.log(f"warning: {self._journal.path}: not written ({e.strerror or e})")
+
+    def _recover(self) -> tuple[int, dict[str, Any] | None]:
+        """Reconcile what the last server on this result folder left (worker thread, before
+        listening): the counter to publish under and the record to publish (None: a first start)."""
+        warning = self._journal.load()
+        if warning is not None:
+            self.log(f"warning: {warning}")
+        j = self._journal
+        self._counter = j.counter
+        if j.pending is None:
+            return j.counter, j.last  # a clean stop, or a kill after the publication: the same again
+        pending = j.pending
+        name = pending.get("capture")
+        rec = self._reconcile(name, pending) if name else None
+        if rec is not None:
+            self._recovered = (pending["part_id"], rec)
+        else:
+            what = f"part '{printable(pending['part_id'])}'" if pending["part_id"] else "the part"
+            rec = {**self._error_record(None, f"the server stopped during the inspection of {what} (killed or "
+                                              "powered off): nothing written; trigger it again", verdict="aborted"),
+                   "part_id": pending["part_id"], "triggered_at": pending.get("triggered_at"), "recovered": True}
+            self.log(f"recovered: {printable(pending['part_id'] or name or '-')}: aborted (the server stopped during "
+                     "its inspection; nothing written)")
+        return (j.counter + 1) % 2**32, rec
+
+    def _reconcile(self, name: str, pending: dict[str, Any]) -> dict[str, Any] | None:
+        """Capture ``name``'s result as the kill left it: its record (the history row added
+        when it lacks one), or None when no result was written (what a write in progress left
+        is removed)."""
+        from inspector import outputs
+        from inspector.errors import CaptureError
+        from inspector.session import RunSummary
+
+        try:
+            folder = outputs.result_folder(self.outdir, name)
+            outputs._clear_leftovers(folder)  # a kill inside write_result: its .NAME.partial (and .old) folder
+        except (CaptureError, OSError) as e:
+            self.log(f"warning: recovering {printable(name)}: {_one_line(e)}")
+            return None
+        if not outputs.result_written(self.outdir, name):
+            return None
+        try:
+            result = result_from_json(json.loads((folder / outputs.RESULT_JSON).read_text(encoding="utf-8")))
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            self.log(f"warning: recovering {printable(name)}: {folder / outputs.RESULT_JSON} cannot be read ({e})")
+            return None
+        if "history" in self.pm.plugin_names():
+            from inspector_plugins.history import recorded
+
+            if recorded(self.outdir, name) is False:  # killed before its row: the hooks that record it, now
+                recipe = self._session.recipe
+                self.pm.on_run_start(recipe, self.outdir, "serve recovery")
+                self.pm.on_result(result, folder)
+                self.pm.on_run_end(recipe, self.outdir, RunSummary({result.verdict: 1}, "done", self.outdir))
+                self.log(f"recovered: {printable(name)}: its history row added")
+        rec = _record(result, folder)
+        rec["part_id"] = rec["part_id"] or pending["part_id"]
+        rec["triggered_at"] = rec["triggered_at"] or pending.get("triggered_at")
+        rec["recovered"] = True
+        self.log(f"recovered: {_log_line(result)}")
+        return rec
 
     # -- the worker thread ------------------------------------------------------------------
     def _warm(self) -> float | None:
@@ -465,7 +595,9 @@ class InspectorServer:
             from inspector.tracebacks import save_traceback
 
             where = save_traceback()
-            return self._error_record(job, f"internal error {type(e).__name__}: {_one_line(e)} (traceback in {where})"), True
+            what = f"internal error {type(e).__name__}: {_one_line(e)}"
+            self.log(f"error: {what} (traceback in {where})")  # the path for the server's log, not for every reader
+            return self._error_record(job, f"{what} (traceback in the server's log)"), True
         if self._records:
             rec = self._records[-1]
             rec["run_s"] = time.perf_counter() - t0  # Session.run alone: the cycle less the hand-offs
@@ -500,10 +632,13 @@ class InspectorServer:
             self._records.append(rec)
 
     # -- results ------------------------------------------------------------------------------
-    async def _publish(self, rec: dict[str, Any]) -> None:
-        """One result: its variables, then ResultCounter (one turn of the event loop)."""
-        self._counter = (self._counter + 1) % 2**32
-        rec = {"counter": self._counter, **rec}
+    async def _publish(self, rec: dict[str, Any], *, counter: int | None = None) -> None:
+        """One result under the next counter (``counter``: this one, a restart's): journaled,
+        then its variables, then ResultCounter."""
+        self._counter = (self._counter + 1) % 2**32 if counter is None else counter
+        rec = {"counter": self._counter, **{k: v for k, v in rec.items() if k != "counter"}}
+        rec["error"] = self._public(rec.get("error"))
+        await self._journaled(self._journal.published, self._counter, rec)
         verdict = rec["verdict"]
         worst = rec.get("worst_deviation_mm")
         await self._set("Verdict", verdict)
@@ -527,8 +662,8 @@ class InspectorServer:
         names = self.recipe_names()
         if name not in names or name_problem(name) is not None:
             return await self._refuse(ua.StatusCodes.BadInvalidArgument,
-                                      f"RecipeName '{printable(name)}': no recipe {printable(name)}.toml in "
-                                      f"{self.recipes_dir} (recipes: {', '.join(names) or 'none'})")
+                                      f"RecipeName '{printable(name)}': no recipe {printable(name)}.toml in the "
+                                      f"recipes folder (recipes: {', '.join(names) or 'none'})")
         return None
 
     async def _switch_recipe(self, name: str) -> ua.StatusCode | None:
@@ -577,6 +712,7 @@ class InspectorServer:
         self._busy = True
         self._continuous = True
         self._job = None
+        self._recovered = None  # a re-trigger is recognised only as the first trigger after a restart
         await self._set("ErrorText", "")
         await self._set_state("ContinuousExecution", busy=True)
         assert self._loop is not None
@@ -644,7 +780,7 @@ def _record(result: Any, folder: Path | None) -> dict[str, Any]:
     return {"part_id": "" if part is None else str(part), "capture": result.capture, "verdict": result.verdict,
             "error": result.error, "recipe": result.recipe, "inspection_s": _finite(result.timings_s.get("total")),
             "worst_deviation_mm": worst, "defect_count": len(result.defects), "defects": defects,
-            "result_dir": str(folder) if folder is not None else None,
+            "result_dir": folder.name if folder is not None else None,  # relative to --out: no server path
             "triggered_at": None if meta.get("timestamp") is None else str(meta["timestamp"]),
             "calibration": _calibration(result.stats)}
 

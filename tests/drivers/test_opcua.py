@@ -75,10 +75,22 @@ class Gate:
         self.released.set()
 
 
+#: The stage watchdog's limits while these tests run: a verdict must not depend on how busy the
+#: machine is (the watchdog itself: tests/core/test_watchdog.py).
+NO_DEADLINE = {"INSPECTOR_STAGE_LIMIT_S": "86400", "INSPECTOR_INSPECTION_LIMIT_S": "86400"}
+
+
 @pytest.fixture(scope="module")
 def cell(tmp_path_factory):
     from inspector.manager import create_plugin_manager
 
+    with pytest.MonkeyPatch.context() as env:  # read whenever a recipe is loaded: for the module's life
+        for name, value in NO_DEADLINE.items():
+            env.setenv(name, value)
+        yield from _cell(tmp_path_factory, create_plugin_manager)
+
+
+def _cell(tmp_path_factory, create_plugin_manager):
     root = tmp_path_factory.mktemp("opcua")
     make_pki(root / "pki")
     gate = Gate()
@@ -165,7 +177,10 @@ class Plc:
 @contextlib.asynccontextmanager
 async def plc(cell, *, user: str | None = USER, password: str = PASSWORD, cert: Path | None = None,
               key: Path | None = None, secure: bool = True):
-    client = Client(cell.url, timeout=20)
+    # A request may legitimately take long under load (a RecipeName write answers once the
+    # recipe is loaded: 12 s for the full recipe's first load at load average 24); waiting on
+    # it with a 20 s request timeout made the recipe test fail on a busy machine.
+    client = Client(cell.url, timeout=WAIT_S)
     client.application_uri = CLIENT_URI
     if secure:
         await client.set_security(SecurityPolicyBasic256Sha256, str(cert or cell.pki / "plc-cert.der"),
@@ -218,7 +233,8 @@ def test_a_hundred_parts_in_a_row_each_part_id_with_its_verdict_and_history_row(
         assert row["part_id"] == part_id and last["part_id"] == part_id and last["capture"] == part_id
         assert row["verdict"] == res["Verdict"] == last["verdict"] == "pass"
         assert res["VerdictCode"] == 1 and res["ErrorText"] == ""
-        assert last["counter"] == res["ResultCounter"] and last["result_dir"] == str(cell.out / part_id)
+        assert last["counter"] == res["ResultCounter"] and last["result_dir"] == part_id  # no server path
+        assert (cell.out / last["result_dir"] / "result.json").is_file()
         assert row["triggered_at"] == last["triggered_at"]
         assert json.loads((cell.out / part_id / "result.json").read_text())["metadata"]["part_id"] == part_id
         assert math.isnan(res["WorstDeviation"])  # the fast recipe measures nothing
@@ -381,6 +397,26 @@ def test_the_calibration_state_is_published_with_the_result(cell):
                                                                 "off_px": {"cam00": 0.03, "cam01": 1.9, "cam02": 0.03}}
     assert ok2 == [False, "cam01"] and last2["calibration"] is None  # not checked: the state stays
     assert ok3 == [True, ""]
+
+
+def test_an_anonymous_reader_sees_no_server_path(cell):
+    """Issue 27 finding 10: LastResult showed the result folder's absolute path (and an error
+    its files') to every reader. Now result_dir is the folder's name in --out, and the out
+    folder's path is taken out of the published error."""
+    root = str(cell.out.resolve())
+    text = f"capture 'X': result not written: {root}/X/result.json: No space left on device"
+
+    async def main():
+        async with plc(cell, user=None) as anonymous:
+            before = await anonymous.read("ResultCounter")
+            asyncio.run_coroutine_threadsafe(cell.server._publish(cell.server._error_record(None, text)),
+                                             cell.server._loop).result(WAIT_S)
+            await anonymous.counter_after(before)
+            return await anonymous.read("ErrorText", "LastResult")
+
+    error, last = run(main())
+    assert error == "capture 'X': result not written: X/result.json: No space left on device"
+    assert root not in last and json.loads(last)["error"] == error
 
 
 def test_continuous_execution_until_stop(cell):
@@ -563,3 +599,50 @@ def test_failed_logins_are_slowed_per_user_and_for_everyone():
         users.get_user(None, f"name{i}", "guess")
         now[0] += 0.1
     assert len(checks) - before <= 10 + 4
+
+
+def test_a_password_check_runs_off_the_event_loop_and_reads_go_on(tmp_path):
+    """Issue 27 finding 9: each PBKDF2 check ran on the server's event loop (reads delayed up
+    to 677 ms). A check is held in progress here until another client's read has been
+    served: on the loop, that read would wait behind it, and the order below would differ."""
+    from types import SimpleNamespace
+
+    from inspector_drivers.opcua.config import Credentials
+
+    order: list[str] = []
+    entered, release = threading.Event(), threading.Event()
+
+    class Held(Credentials):
+        def check(self, user, password):
+            order.append("check started")
+            entered.set()
+            release.wait(30)  # the read below releases it (or 30 s pass: the test then fails on the order)
+            order.append("check ended")
+            return super().check(user, password)
+
+    make_pki(tmp_path / "pki")
+    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    server = InspectorServer(RECIPES / "fast.toml", tmp_path / "out", ServerSettings(endpoint=url, pki=tmp_path / "pki"),
+                             env={"INSPECTOR_OPCUA_USER": USER, "INSPECTOR_OPCUA_PASSWORD": PASSWORD}, warm_up=False)
+    server._creds = Held(USER, _plain=PASSWORD)  # the server's one user, its check held
+    where = SimpleNamespace(url=url, pki=tmp_path / "pki")
+
+    async def login():
+        async with plc(where) as writer:
+            return await writer.read("State")
+
+    async def main():
+        async with plc(where, user=None) as reader:
+            logging_in = asyncio.create_task(login())
+            assert await asyncio.to_thread(entered.wait, WAIT_S)
+            assert await reader.read("State") == "Ready"  # served while the password is being checked
+            order.append("read served")
+            release.set()
+            assert await logging_in == "Ready"  # and the login goes through
+
+    with ServerThread(server):
+        try:
+            run(main())
+        finally:
+            release.set()
+    assert order == ["check started", "read served", "check ended"]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import sqlite3
 import sys
@@ -208,7 +209,9 @@ def test_cancel_mid_run_is_aborted_and_writes_no_row(make_window, qtbot, sim_cap
     summary = _inspect_with_key(qtbot, w)
     assert summary.ended == "cancelled" and summary.counts["aborted"] == 1
     assert w.banner.state == "aborted" and w.banner.word.text() == "ABORTED"
-    assert "cancelled before stage" in w.banner.reason.text()
+    # Between stages the runner stops before the next one; once a stage runs, its watchdog
+    # stops it (issue 27): which one a loaded machine reaches first is a matter of timing.
+    assert re.search(r"cancelled (before|during) stage", w.banner.reason.text()), w.banner.reason.text()
     assert "bcps" not in stages
     assert not (out / "good").exists()
     assert not (out / "history.sqlite").exists() or _history(out) == []
