@@ -70,17 +70,23 @@ def _watch_params(args: argparse.Namespace) -> dict[str, Any] | None:
 
 def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, reference: str | None, quiet: bool,
                watch: dict[str, Any] | None = None, csv: bool = False, pm: PluginManager | None = None,
-               cluster: dict[str, Any] | None = None) -> int:
+               cluster: dict[str, Any] | None = None, unapproved: bool = False, dfq: str | None = None,
+               qif: str | None = None) -> int:
     """``inspector run``: a :class:`~inspector.session.Session` whose events are printed;
     returns the exit status (CONTRACT). ``pm``: the plugin manager (default: a new one).
     ``cluster``: ``{"scheduler": ADDRESS}`` or ``{"workers": N}``: the captures are inspected on
-    a Dask cluster (:mod:`inspector.distributed_run`), with the same results and output."""
+    a Dask cluster (:mod:`inspector.distributed_run`), with the same results and output.
+    ``unapproved``: on a production station, run a recipe no engineer approved anyway
+    (:func:`inspector.approval.require_approved`: a warning and an audit row)."""
     from inspector.outputs import one_line
     from inspector.session import Inspected, RunStarted, Session, Source, Warned
 
     session = Session.open(recipe_path, out, reference=reference, csv=csv, pm=pm)
+    quality = _quality_files(session, dfq, qif)  # --dfq / --qif (issue 28)
 
     def show(event: object) -> None:
+        if quality is not None and isinstance(event, Inspected):
+            quality.add(event.outcome.result)
         # Only the verdicts are kept (the summary counts them): a live driver or a long batch
         # must not hold every result's points in memory (5 MB a capture).
         if isinstance(event, RunStarted) and event.inbox is not None and not quiet:
@@ -97,6 +103,9 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
 
     session.subscribe(show)
     try:
+        from inspector.approval import require_approved
+
+        require_approved(session.recipe, outdir=out, unapproved=unapproved)  # the operator role: RecipeError, exit 2
         if cluster is None:
             summary = session.run(Source(captures=tuple(captures or ()), watch=watch))
         else:
@@ -105,6 +114,10 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
             summary = run_on_cluster(session, captures or (), progress=not quiet, **cluster)
     finally:
         session.close()
+        if quality is not None:
+            for path in quality.write():
+                if not quiet:
+                    print(f"wrote {path}", flush=True)
     if summary.inbox is not None and summary.ended == "interrupted" and not quiet:
         print("watch stopped", flush=True)
     if not summary.inspected and summary.inbox is not None:
@@ -117,6 +130,16 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
         n = summary.counts
         print(f"{summary.inspected} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {summary.outdir.resolve()}")
     return summary.exit_status
+
+
+def _quality_files(session: Any, dfq: str | None, qif: str | None) -> Any:
+    """``--dfq`` / ``--qif``: the collector of the run's characteristics (None without either
+    option); RecipeError (one line) when the recipe defines none or a file cannot be placed."""
+    if dfq is None and qif is None:
+        return None
+    from inspector.characteristics.formats import RunRecords
+
+    return RunRecords.open(session.recipe, session.reference, dfq=dfq, qif=qif)
 
 
 def _add_run(sub: argparse._SubParsersAction[Any]) -> None:
@@ -138,6 +161,12 @@ def _add_run(sub: argparse._SubParsersAction[Any]) -> None:
                         "they must see the capture folders by the same paths. Results are written here, as a local run's")
     r.add_argument("--workers", type=int, metavar="N",
                    help="with --capture: inspect on a local Dask cluster of N worker processes")
+    r.add_argument("--dfq", metavar="FILE", help="also write the run's characteristics as Q-DAS AQDEF (DFQ): one value "
+                                                 "line per part (the recipe's [[characteristics]])")
+    r.add_argument("--qif", metavar="FILE", help="also write the run's characteristics as a QIF 3.0 Results document")
+    r.add_argument("--unapproved", action="store_true",
+                   help="in production mode (inspector roles production on), run a recipe no engineer approved, or "
+                        "changed since, anyway: a warning, and an unapproved-run row in OUTDIR's audit")
 
 
 def _cluster_params(args: argparse.Namespace) -> dict[str, Any] | None:
@@ -158,7 +187,8 @@ def _cluster_params(args: argparse.Namespace) -> dict[str, Any] | None:
 
 def _run_command(args: argparse.Namespace) -> int:
     return run_recipe(args.recipe, args.capture, args.out, args.reference, args.quiet,
-                      watch=_watch_params(args), csv=args.csv, pm=args.plugin_manager, cluster=_cluster_params(args))
+                      watch=_watch_params(args), csv=args.csv, pm=args.plugin_manager, cluster=_cluster_params(args),
+                      unapproved=args.unapproved, dfq=args.dfq, qif=args.qif)
 
 
 # -- plugins / plugin new / recipe check ---------------------------------------------------
@@ -260,12 +290,38 @@ def _add_recipe(sub: argparse._SubParsersAction[Any]) -> None:
     chk = rsub.add_parser("check", help="validate a recipe without running it")
     chk.add_argument("recipe")
     chk.add_argument("--reference", metavar="MESH")
+    chk.add_argument("--rig", metavar="RIG.json", help="the rig the recipe will run on (a capture folder's rig.json): "
+                                                       "refused when no part could ever be rejected with it")
+    from inspector.approval import add_approve_parser
+
+    add_approve_parser(rsub)
+
+
+def _recipe_command(args: argparse.Namespace) -> int:
+    if args.recipe_command == "approve":
+        from inspector.approval import run_approve
+
+        return run_approve(args)
+    return _recipe_check(args)
 
 
 def _recipe_check(args: argparse.Namespace) -> int:
     _, recipe, _ref = _load(args.recipe, args.reference, args.plugin_manager)
+    on = ""
+    if getattr(args, "rig", None):  # issue 27: values in range that make a rejection impossible on this rig
+        from inspector import api
+        from inspector.recipe import rig_problems
+
+        try:
+            rig = api.read_rig(args.rig)
+        except InspectorError as e:  # a command's input: exit 2 like the recipe's own problems
+            raise RecipeError(f"--rig {args.rig}: {e}") from None
+        problems = rig_problems(recipe, rig)
+        if problems:
+            raise RecipeError(f"{args.recipe}: {problems[0]} (rig {args.rig})")
+        on = f"; rig {args.rig} ({len(rig)} cameras): a part can be rejected"
     steps = " -> ".join(f"{s.name} ({s.spec.name})" for s in recipe.steps)
-    print(f"{args.recipe}: OK: recipe {recipe.name!r}, driver {recipe.driver.spec.name}, stages {steps}; reference {recipe.reference or 'none'}")
+    print(f"{args.recipe}: OK: recipe {recipe.name!r}, driver {recipe.driver.spec.name}, stages {steps}; reference {recipe.reference or 'none'}{on}")
     return EXIT_OK
 
 
@@ -300,7 +356,7 @@ CORE_COMMANDS: dict[str, tuple[Callable[[argparse._SubParsersAction[Any]], None]
     "run": (_add_run, lambda args: _run_command(args)),
     "plugins": (_add_plugins, lambda args: _plugins(args)),
     "plugin": (_add_plugin, lambda args: _plugin_command(args)),
-    "recipe": (_add_recipe, lambda args: _recipe_check(args)),
+    "recipe": (_add_recipe, lambda args: _recipe_command(args)),
     "report": (_add_report, lambda args: _report(args)),
     "roles": (_add_roles, lambda args: _roles(args)),
 }

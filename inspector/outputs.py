@@ -24,6 +24,7 @@ import json
 import math
 import os
 import shutil
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -380,6 +381,10 @@ def one_line(result: InspectionResult) -> str:
         dev = f"  deviation mean {d.mean:+.4f} min {d.min:+.4f} max {d.max:+.4f} mm"
     n = len(result.defects)
     defects = f"  {n} defect{'s' if n != 1 else ''}" if n else ""
+    chars = result.stats.get("characteristics") if isinstance(result.stats, Mapping) else None
+    nok = list(chars.get("nok_ids", ())) if isinstance(chars, Mapping) else []
+    if nok:  # a part failed by a characteristic alone must not read "FAIL ... 0 defects"
+        defects += f"  {len(nok)} NOK characteristic{'s' if len(nok) != 1 else ''} ({', '.join(map(str, nok))})"
     return f"{name}: {result.verdict.upper()}{dev}{defects}  ({result.timings_s.get('total', 0.0):.2f} s)"
 
 

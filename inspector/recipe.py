@@ -33,6 +33,12 @@ Layout::
     hook_s = 1.0                        # a plugin's lifecycle hook slower than this, too
     [plugins.acme]                      # optional: plugin acme's settings (inspector_register_settings),
     line = "L3"                         # validated like stage parameters; never code to load
+    [[characteristics]]                 # optional: measured characteristics (docs/characteristics.md),
+    id = "1"                            # checked against the reference's features at load
+    kind = "diameter"
+    feature = "F14"
+    lower = -0.05
+    upper = 0.05
 """
 
 from __future__ import annotations
@@ -55,7 +61,7 @@ if TYPE_CHECKING:
     from inspector.manager import PluginManager
 
 __all__ = ["Step", "DriverStep", "Outputs", "Budget", "BUDGET_ENV", "Recipe", "load_recipe", "parse_recipe",
-           "read_recipe_toml"]
+           "read_recipe_toml", "rig_problems"]
 
 
 @dataclass(frozen=True)
@@ -124,7 +130,11 @@ class Recipe:
         ``[budget]``, else the environment (:data:`BUDGET_ENV`), else the defaults.
     plugins : mapping
         Plugin name -> its validated settings (``[plugins.NAME]``, the defaults when the
-        recipe has no table), for every loaded plugin that declares settings.
+        recipe has no table), for every loaded plugin that declares settings; and
+        ``"characteristics"`` -> :attr:`characteristics` when the recipe has some.
+    characteristics : tuple of Characteristic
+        ``[[characteristics]]`` (:mod:`inspector.characteristics.definitions`), checked
+        against the reference's features at load; () when none.
     """
 
     name: str
@@ -137,6 +147,7 @@ class Recipe:
     outputs: Outputs = field(default_factory=Outputs)
     budget: Budget = field(default_factory=Budget)
     plugins: Mapping[str, Any] = field(default_factory=lambda: MappingProxyType({}))
+    characteristics: tuple[Any, ...] = ()
 
 
 def _table(value: Any, where: str) -> Mapping[str, Any]:
@@ -229,7 +240,7 @@ def parse_recipe(data: Mapping[str, Any], pm: PluginManager, *, path: Path | Non
     """
     label = path.name if path is not None else "<recipe>"
     base = path.parent if path is not None else Path.cwd()
-    _only(data, {"recipe", "driver", "stages", "tolerance", "outputs", "budget", "plugins"}, label)
+    _only(data, {"recipe", "driver", "stages", "tolerance", "outputs", "budget", "plugins", "characteristics"}, label)
 
     head = _table(data.get("recipe", {}), f"{label}: recipe")
     _only(head, {"name", "reference", "description"}, f"{label}: recipe")
@@ -291,9 +302,29 @@ def parse_recipe(data: Mapping[str, Any], pm: PluginManager, *, path: Path | Non
     if any(s.spec.kind in ("align", "bcps", "evaluate") for s in steps) and ref is None:
         raise RecipeError(f"{label}: recipe.reference: no reference mesh (set it in the recipe or pass --reference)")
     outputs = build_params(Outputs, _table(data.get("outputs", {}), f"{label}: outputs"), f"{label}: outputs")
+    budget = _budget(data.get("budget"), f"{label}: budget")
+    plugins = _plugin_settings(data.get("plugins"), pm, f"{label}: plugins", base)
+    chars = _characteristics(data.get("characteristics"), f"{label}: characteristics", ref, steps)
+    if chars:  # the measuring stage reads them from context.settings, like a plugin's settings
+        from inspector.characteristics.definitions import SETTINGS_KEY
+
+        plugins = MappingProxyType({**plugins, SETTINGS_KEY: chars})
     return Recipe(name, path, ref, driver, tuple(steps), tol, outputs=outputs,
-                  budget=_budget(data.get("budget"), f"{label}: budget"),
-                  plugins=_plugin_settings(data.get("plugins"), pm, f"{label}: plugins", base))
+                  budget=budget, plugins=plugins, characteristics=chars)
+
+
+def _characteristics(raw: Any, where: str, ref: str | None, steps: list[Step]) -> tuple[Any, ...]:
+    """``[[characteristics]]`` checked against the reference's features (issue 28); refused
+    when no stage of the recipe measures them."""
+    if raw is None:
+        return ()
+    from inspector.characteristics.definitions import measured_in, parse_characteristics
+
+    chars = parse_characteristics(raw, where, ref)
+    if chars and not measured_in(steps):
+        raise RecipeError(f"{where}: no stage measures them (add [[stages]] name = \"characteristics\", "
+                          "use = \"evaluate.characteristics\" after the evaluate stage)")
+    return chars
 
 
 def _plugin_settings(raw: Any, pm: PluginManager, where: str, base: Path) -> Mapping[str, Any]:
@@ -359,3 +390,18 @@ def load_recipe(path: str | Path, pm: PluginManager, *, reference: str | None = 
         digest = None
     return dataclasses.replace(recipe, path=Path(path).resolve(), sha256=digest)
 
+
+def rig_problems(recipe: Recipe, rig: Any) -> list[str]:
+    """Why ``recipe`` could never reject a part measured with ``rig`` (a
+    :class:`~inspector.model.Rig`): one line per stage whose parameters say so, naming the
+    step and the key; [] when it can. A stage's parameter class may define
+    ``rig_problem(rig) -> str | None`` (the built-in evaluate stage's checks ``min_cameras``
+    and ``min_points``); ``inspector recipe check --rig`` and the stage itself ask it.
+    """
+    problems = []
+    for step in recipe.steps:
+        check = getattr(step.params, "rig_problem", None)
+        why = check(rig) if callable(check) else None
+        if why:
+            problems.append(f"stage {step.name!r} ({step.spec.name}): {why}")
+    return problems

@@ -37,7 +37,7 @@ from xml.sax.saxutils import escape, quoteattr
 
 from inspector.characteristics.measure import Characteristic, CharacteristicResult, unit_of
 
-__all__ = ["DFQ_FIELD", "DFQ_CHARACTERISTIC", "PartRecord", "write_dfq", "write_qif"]
+__all__ = ["DFQ_FIELD", "DFQ_CHARACTERISTIC", "PartRecord", "RunRecords", "write_dfq", "write_qif"]
 
 #: AQDEF separators of a value line: between the fields of one value, between characteristics.
 DFQ_FIELD = "\x14"
@@ -367,3 +367,85 @@ def write_qif(path: str | os.PathLike[str], characteristics: Sequence[Characteri
     out += body
     w("</QIFDocument>")
     return _write(path, ("\n".join(out) + "\n").encode("utf-8"))
+
+
+# --------------------------------------------------------------------------- a run's files
+
+
+def _when(metadata: Mapping[str, Any]) -> datetime:
+    """The part's capture time (``capture.json`` ``timestamp``, ISO 8601), else now."""
+    ts = metadata.get("timestamp") if isinstance(metadata, Mapping) else None
+    if isinstance(ts, str):
+        try:
+            return datetime.fromisoformat(ts.replace("Z", "+00:00"))
+        except ValueError:
+            pass
+    return datetime.now().astimezone()
+
+
+def _output_file(path: str, option: str) -> Path:
+    from inspector.errors import RecipeError
+
+    p = Path(path).expanduser()
+    if p.is_dir():
+        raise RecipeError(f"{option} {path}: is a folder, not a file")
+    if not p.parent.is_dir():
+        raise RecipeError(f"{option} {path}: no such folder {p.parent}")
+    return p
+
+
+@dataclass
+class RunRecords:
+    """The characteristics of a run's parts, collected as they are inspected and written to
+    ``--dfq`` / ``--qif`` files at its end (``inspector run``).
+
+    Only the rows are kept (``result.extras["characteristics"]``: a few hundred bytes a
+    part), never the points. A part with no rows (an error before the characteristics
+    stage) has no value line.
+    """
+
+    characteristics: tuple[Characteristic, ...]
+    features: Sequence[Any]
+    dfq: Path | None
+    qif: Path | None
+    part_number: str = ""
+    part_description: str = ""
+    parts: list[PartRecord] = field(default_factory=list)
+
+    @classmethod
+    def open(cls, recipe: Any, reference: Any, *, dfq: str | None = None, qif: str | None = None) -> RunRecords:
+        """Check the options against ``recipe`` (a :class:`~inspector.recipe.Recipe`) before the
+        run; RecipeError (one line) when it defines no characteristics or a file's folder is
+        missing."""
+        from inspector.characteristics.definitions import features_for
+        from inspector.errors import RecipeError
+
+        option = "--dfq" if dfq is not None else "--qif"
+        chars = tuple(getattr(recipe, "characteristics", ()))
+        if not chars:
+            raise RecipeError(f"{option}: the recipe {recipe.name!r} defines no [[characteristics]] to write")
+        if reference is None:
+            raise RecipeError(f"{option}: the recipe {recipe.name!r} has no reference mesh")
+        return cls(chars, features_for(reference.vertices, reference.faces),
+                   _output_file(dfq, "--dfq") if dfq is not None else None,
+                   _output_file(qif, "--qif") if qif is not None else None,
+                   part_number=Path(str(reference.name)).stem if not str(reference.name).startswith("builtin:")
+                   else str(reference.name), part_description=str(recipe.name))
+
+    def add(self, result: Any) -> None:
+        """Keep one result's characteristics (an :class:`~inspector.model.InspectionResult`)."""
+        rows = (getattr(result, "extras", None) or {}).get("characteristics")
+        if not isinstance(rows, list) or not rows:
+            return
+        self.parts.append(PartRecord(str(result.capture), _when(getattr(result, "metadata", {}) or {}), tuple(rows)))
+
+    def write(self) -> list[Path]:
+        """Write the files asked for (also with no part: the header alone); their paths."""
+        out = []
+        if self.dfq is not None:
+            out.append(write_dfq(self.dfq, self.characteristics, self.parts, part_number=self.part_number,
+                                 part_description=self.part_description))
+        if self.qif is not None:
+            out.append(write_qif(self.qif, self.characteristics, self.features, self.parts,
+                                 part_number=self.part_number, part_description=self.part_description))
+        return out

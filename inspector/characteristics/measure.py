@@ -288,7 +288,8 @@ def assign_points(points_ref: np.ndarray, features: Sequence[Feature], reference
         Reference frame, mm.
     features : sequence of Feature
     reference : Reference
-        Anything with ``distance.closest(points) -> (closest (N, 3), triangle (N,))``.
+        Anything with ``vertices``, ``faces`` and ``distance.closest(points) -> (closest
+        (N, 3), triangle (N,))``.
     band_mm : float
         Farthest a point may be from its nearest reference triangle, mm.
 
@@ -298,15 +299,29 @@ def assign_points(points_ref: np.ndarray, features: Sequence[Feature], reference
         Position in ``features``, or -1 (beyond the band, or on a triangle of no feature).
     """
     P = np.asarray(points_ref, float).reshape(-1, 3)
-    if len(P) == 0:
-        return np.zeros(0, np.int64)
-    q, tid = reference.distance.closest(P)
+    out = np.full(len(P), -1, np.int64)
+    if len(P) == 0 or not len(features):
+        return out
+    # Only a point within band_mm of some feature's bounding box can be within band_mm of
+    # its triangles: the closest-point query (the costly part) is asked for those alone,
+    # with the same answer for them (a recipe measures a few features of a part).
+    near = np.zeros(len(P), bool)
+    V = np.asarray(reference.vertices, float)
+    F = np.asarray(reference.faces)
+    for f in features:
+        corners = V[F[f.faces].ravel()]
+        lo, hi = corners.min(axis=0) - band_mm, corners.max(axis=0) + band_mm
+        near |= np.all((P >= lo) & (P <= hi), axis=1)
+    idx = np.flatnonzero(near)
+    if idx.size == 0:
+        return out
+    q, tid = reference.distance.closest(P[idx])
     owner = np.full(len(reference.faces), -1, np.int64)
     for k, f in enumerate(features):
         owner[f.faces] = k
-    out = np.where(tid >= 0, owner[np.clip(tid, 0, None)], -1)
-    far = ~(np.linalg.norm(P - q, axis=1) <= band_mm)
-    out[far] = -1
+    got = np.where(tid >= 0, owner[np.clip(tid, 0, None)], -1)
+    got[~(np.linalg.norm(P[idx] - q, axis=1) <= band_mm)] = -1
+    out[idx] = got
     return out
 
 
@@ -326,12 +341,20 @@ def _robust_fit(f: Feature, P: np.ndarray, w: np.ndarray) -> tuple[fits.Fit, np.
             break
         idx = np.flatnonzero(keep)
         keep[idx[~new]] = False
-        fit = _fit_kind(f, P[keep], w[keep])
+        # Re-fit from the fit just made: the trim moves it by microns, so it settles in a
+        # step or two instead of the dozen from the CAD nominal.
+        fit = _fit_kind(f, P[keep], w[keep], start=fit.params)
     return fit, keep
 
 
-def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray) -> fits.Fit:
-    nm = f.nominal
+def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray, start: Mapping[str, Any] | None = None) -> fits.Fit:
+    """The feature's primitive fitted to ``P``; the start is ``start`` (an earlier fit's
+    params) when given, else the CAD nominal."""
+    nm: Mapping[str, Any] = f.nominal
+    if start and f.kind == "cylinder":
+        nm = {"direction": start["direction"], "point": start["point"], "radius": start["radius"]}
+    elif start and f.kind == "cone":
+        nm = {"axis": start["axis"], "apex": start["apex"], "half_angle_deg": start["half_angle_deg"]}
     m = MIN_POINTS[f.kind]
     if f.kind == "plane":
         fit = fits.fit_plane(P, w, min_points=m)
@@ -360,7 +383,7 @@ def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray) -> fits.Fit:
 
 def measure(characteristics: Sequence[Characteristic], features: Sequence[Feature], points_ref: np.ndarray,
             weights: np.ndarray | None, reference: Any, *, band_mm: float = 0.5, max_u_fraction: float = 0.5,
-            slice_mm: float | None = None) -> list[CharacteristicResult]:
+            slice_mm: float | None = None, u_surface_mm: float = 0.0) -> list[CharacteristicResult]:
     """Measure characteristics from one inspection's points.
 
     Parameters
@@ -382,6 +405,11 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
     slice_mm : float, optional
         Roundness: thickness of the cross-sections along the axis (default: a fifth of the
         feature's length, at least 0.5 mm).
+    u_surface_mm : float
+        Standard uncertainty of an offset of the whole part's surface common to all its
+        points (the silhouettes' edge placement), mm; added in quadrature to each size
+        characteristic's ``u`` times its sensitivity (:func:`offset_sensitivity`: 2 for a
+        diameter or a thickness, 0 for a step, an axis distance, an angle or a form).
 
     Returns
     -------
@@ -407,12 +435,12 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
         fitted[f.id] = (fit, Pf[keep])
     out = []
     for c in characteristics:
-        out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm))
+        out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm, u_surface_mm))
     return out
 
 
 def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, tuple[fits.Fit, np.ndarray]],
-         max_u_fraction: float, slice_mm: float | None) -> CharacteristicResult:
+         max_u_fraction: float, slice_mm: float | None, u_surface_mm: float = 0.0) -> CharacteristicResult:
     nominal = c.nominal_value(by_id)
     fs = [fitted[fid][0] for fid in c.features]
     npts = int(sum(ft.n for ft in fs))
@@ -432,6 +460,8 @@ def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, t
         return fail(f"{'-'.join(c.features)}: {e}")
     if not math.isfinite(value) or not math.isfinite(u):
         return fail(f"{'-'.join(c.features)}: the fit gives no finite value")
+    if u_surface_mm > 0:
+        u = math.hypot(u, abs(offset_sensitivity(c, by_id, fitted)) * u_surface_mm)
     U = 2.0 * u
     width = c.upper - c.lower
     if width > 0 and U > max_u_fraction * width:
@@ -440,6 +470,50 @@ def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, t
     dev = value - nominal
     verdict = "ok" if c.lower <= dev <= c.upper else "nok"
     return CharacteristicResult(c.id, c.kind, c.features, nominal, value, dev, c.lower, c.upper, u, U, npts, verdict)
+
+
+def _offset(geo: dict[str, Any], f: Feature, delta: float) -> dict[str, Any]:
+    """A fitted primitive's surface moved by ``delta`` mm along its outward normal (the part
+    grown by ``delta`` there): a plane along its (outward) normal, a boss's or a convex
+    sphere's radius up, a bore's down; a cone's apex along its axis. Axes do not move."""
+    g = dict(geo)
+    sign = 1.0 if f.nominal.get("convex", True) else -1.0
+    if g["kind"] == "plane":
+        g["point"] = np.asarray(g["point"], float) + delta * fits.direction_of(g)
+    elif g["kind"] in ("cylinder", "sphere"):
+        g["radius"] = float(g["radius"]) + sign * delta
+    elif g["kind"] == "cone":
+        alpha = math.radians(float(g["half_angle_deg"]))
+        g["apex"] = np.asarray(g["apex"], float) - sign * delta / math.sin(alpha) * fits.direction_of(g)
+        if "radius" in g:
+            g["radius"] = float(g["radius"]) + sign * delta / math.cos(alpha)
+    return g
+
+
+def offset_sensitivity(c: Characteristic, by_id: Mapping[str, Feature],
+                       fitted: Mapping[str, tuple[fits.Fit, np.ndarray]]) -> float:
+    """How much the characteristic's value moves per mm of a surface offset common to all its
+    features (d value / d delta, mm/mm or deg/mm).
+
+    The silhouettes place every edge of a part with the same small bias (the segmentation's
+    threshold against the edge profile, the calibration's scale: a fraction of a pixel), so
+    a part looks grown or shrunk by a common ``delta`` -- one systematic error shared by all
+    its points, which no number of points averages away. A diameter moves by ``2 delta``
+    (a bore's by ``-2 delta``), a thickness between faces facing away by ``2 delta``, a step
+    between faces facing the same way by 0, a distance between axes, an angle, a position
+    or a form by 0."""
+    if c.kind in ("diameter", "radius"):
+        f = by_id[c.features[0]]
+        k = 2.0 if c.kind == "diameter" else 1.0
+        return k * (1.0 if f.nominal.get("convex", True) else -1.0)
+    if c.kind != "distance":
+        return 0.0
+    fa, fb = (by_id[fid] for fid in c.features)
+    ga, gb = (fitted[fid][0].perturbed(np.zeros(len(fitted[fid][0].names))) for fid in c.features)
+    h = 1e-3
+    hi = fits.geometric_distance(_offset(ga, fa, h), _offset(gb, fb, h))
+    lo = fits.geometric_distance(_offset(ga, fa, -h), _offset(gb, fb, -h))
+    return (hi - lo) / (2 * h)
 
 
 class _NotMeasurable(Exception):
@@ -497,22 +571,30 @@ def _position(f: Feature, fit: fits.Fit) -> tuple[float, float]:
 
 
 def _roundness(f: Feature, fit: fits.Fit, pts: np.ndarray, slice_mm: float | None) -> tuple[float, float]:
-    """The largest minimum-zone roundness over cross-sections along the fitted axis."""
+    """The largest minimum-zone roundness over cross-sections along the fitted axis.
+
+    A section counts when it holds at least 12 points all around the axis (no gap of more
+    than 90 degrees between them: a short arc does not fix a centre). All sections are
+    solved together (:func:`inspector.kernels.fits.roundness_sections`, one programme)."""
     a = np.asarray(fit.params.get("direction", fit.params.get("axis")), float)
     p = np.asarray(fit.params["point"], float)
     h = (pts - p) @ a
     length = float(np.ptp(h)) if len(h) else 0.0
     step = slice_mm if slice_mm is not None else max(0.5, length / 5.0)
-    worst = -1.0
     edges = np.arange(h.min(), h.max() + step, step) if len(h) else np.zeros(0)
+    bu, bv = fits.orthonormal_basis(a)
+    d = pts - p
+    ang = np.arctan2(d @ bv, d @ bu)
+    sections = []
     for lo in edges:
         sel = (h >= lo) & (h < lo + step)
         if sel.sum() < 12:
             continue
-        circ = fits.fit_circle(pts[sel], normal=a, min_points=12)
-        if circ.problem is not None:
+        t = np.sort(ang[sel])
+        gap = max(float(np.max(np.diff(t))) if len(t) > 1 else 2 * math.pi, float(t[0] + 2 * math.pi - t[-1]))
+        if gap > math.pi / 2:
             continue
-        worst = max(worst, fits.roundness(pts[sel], circ))
-    if worst < 0:
+        sections.append(pts[sel])
+    if not sections:
         raise _NotMeasurable(f"{f.id}: no cross-section of {step:.3g} mm holds enough points around the axis for a roundness")
-    return worst, fit.s
+    return float(fits.roundness_sections(sections, a).max()), fit.s
