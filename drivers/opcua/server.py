@@ -249,6 +249,14 @@ class InspectorServer:
     def _open_session(self, path: Path) -> Session:
         """A session of ``path`` whose driver names captures after the PartIds."""
         session = Session.open(path, self.outdir, pm=self.pm)
+        # A PLC has no login: the server runs as the operator, so on a production station only
+        # a recipe an engineer approved (file and reference unchanged since) may run (issue 27).
+        from inspector.approval import approval_problem
+
+        problem = approval_problem(session.recipe)
+        if problem is not None:
+            session.close()
+            raise RecipeError(problem)
         spec = session.recipe.driver.spec
 
         def opened(params: Any, _open: Callable[[Any], Any] = spec.open) -> Any:
