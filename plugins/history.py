@@ -756,6 +756,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--plot", metavar="PNG", help="also draw the trend: each part's deviation range against its tolerance")
     p.add_argument("--cameras", metavar="PNG", help="also draw the calibration health: how far each camera was off (px) "
                                                     "in each inspection, against the flagging threshold")
+    p.add_argument("--characteristics", nargs="?", const="", metavar="PNG",
+                   help="each characteristic over the parts: n, mean, s, Cp, Cpk, out of tolerance, Cg, Cgk; with PNG "
+                        "also its individuals control chart with the tolerance band")
     p.add_argument("--shift", nargs="?", type=int, const=1, metavar="N",
                    help="the current shift's counters (and the N-1 before it): yield, worst regions, errors by reason")
     p.add_argument("--config", metavar="TOML", help="the cell's settings for --shift ([shifts]; default cell.toml in "
@@ -1023,6 +1026,8 @@ def run(args) -> int:
     except InputError as e:
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
+    if args.characteristics is not None:
+        return _characteristics_cmd(rows, args.characteristics)
     for picture, draw in ((args.plot, plot_history), (args.cameras, plot_cameras)):
         if picture:
             try:
@@ -1050,6 +1055,28 @@ def run(args) -> int:
     for picture in (args.plot, args.cameras):
         if picture:
             print(f"wrote {picture}")
+    return 0
+
+
+def _characteristics_cmd(rows: list[dict[str, Any]], picture: str) -> int:
+    """``--characteristics [PNG]``: the capability table, and the control charts."""
+    from inspector.characteristics.charts import capability_text, parts_rows, plot_charts
+
+    parts = parts_rows(rows)
+    if not parts:
+        print(f"inspector: error: none of the {len(rows)} inspections measured characteristics (a recipe's "
+              "[[characteristics]] and its evaluate.characteristics stage)", file=sys.stderr)
+        return 3
+    for line in capability_text(parts):
+        print(line)
+    print(f"{len(parts)} parts with characteristics of {len(rows)} inspections")
+    if picture:
+        try:
+            plot_charts(parts, Path(picture))
+        except OSError as e:
+            print(f"inspector: error: {picture}: cannot write ({e.strerror or e})", file=sys.stderr)
+            return 3
+        print(f"wrote {picture}")
     return 0
 
 
