@@ -301,6 +301,7 @@ def render_pdf(folder: Path, out: Path | None = None, *, picture: Path | None = 
             _draw_picture(page, res, points, image, size, rows)
             _draw_stats(page, res)
             _draw_defects(page, res, rows)
+            _draw_characteristics(page, res)
             left = _draw_recipe(page, rec)
             _draw_footer(page, folder)
             return left
@@ -561,6 +562,46 @@ def _draw_defects(page: _Page, res: dict, rows: int) -> None:
     page.y += (n + 1) * lh + 0.06
     if len(defects) > n:
         page.text(_MARGIN + 0.35, page.y, f"and {len(defects) - n} more (result.json lists them all)",
+                  fontsize=7.5, color=_GREY)
+        page.y += lh
+
+
+#: Characteristic rows on the page; the others are counted (result.json lists them all).
+_MAX_CHAR_ROWS = 12
+
+
+def _draw_characteristics(page: _Page, res: dict) -> None:
+    """The measured characteristics (issue 28), when the result has some: value, limits,
+    deviation, expanded uncertainty U (k = 2) and verdict, in the recipe's order."""
+    chars = (_dict(res.get("extras")).get("characteristics")) or []
+    chars = [c for c in chars if isinstance(c, dict)]
+    if not chars:
+        return
+    nok = sum(c.get("verdict") == "nok" for c in chars)
+    page.heading(f"Characteristics ({len(chars)}, {nok} NOK)")
+    cols = (("id", 0.22, "right"), ("kind", 0.35, "left"), ("nominal", 2.0, "right"), ("measured", 2.85, "right"),
+            ("deviation", 3.7, "right"), ("limits", 4.75, "right"), ("U (k=2)", 5.5, "right"), ("verdict", 5.75, "left"))
+    lh = _DEFECT_ROW_H
+    for title, x, ha in cols:
+        page.text(_MARGIN + x, page.y, title, fontsize=7.5, fontweight="bold", ha=ha)
+    page.rule(page.y + lh - 0.02, lw=0.4)
+    shown = chars[:_MAX_CHAR_ROWS]
+    for i, c in enumerate(shown):
+        y = page.y + (i + 1) * lh + 0.02
+        if i % 2:
+            page.box(_MARGIN, y - 0.025, _W - 2 * _MARGIN, lh, facecolor="#f3f3f3", edgecolor="none")
+        verdict = str(c.get("verdict", "")).replace("_", " ")
+        why = f": {c['reason']}" if c.get("verdict") == "not_measurable" and c.get("reason") else ""
+        cells = (page.fit(str(c.get("id", "")), 0.4, 7.5), page.fit(str(c.get("kind", "")), 1.3, 7.5),
+                 _num(c.get("nominal"), ".4f"), _num(c.get("measured"), ".4f"), _num(c.get("deviation"), "+.4f"),
+                 f"{_num(c.get('lower'), '+.3f')} / {_num(c.get('upper'), '+.3f')}", _num(c.get("U"), ".4f"),
+                 page.fit(verdict.upper() + why, 1.2, 7.5))
+        color = "#b00020" if c.get("verdict") == "nok" else "black"
+        for (_, x, ha), cell in zip(cols, cells):
+            page.text(_MARGIN + x, y, cell, fontsize=7.5, ha=ha, color=color)
+    page.y += (len(shown) + 1) * lh + 0.06
+    if len(chars) > len(shown):
+        page.text(_MARGIN + 0.35, page.y, f"and {len(chars) - len(shown)} more (result.json lists them all)",
                   fontsize=7.5, color=_GREY)
         page.y += lh
 

@@ -244,3 +244,20 @@ def test_without_pdf_the_report_command_is_unchanged(tmp_path, capsys):
     assert main(["report", str(good)]) == 0
     assert capsys.readouterr().out == f"wrote {good / 'deviation.png'}\n"
     assert not (good / "report.pdf").exists()
+
+
+def test_the_characteristics_are_listed_with_their_uncertainty(tmp_path):
+    rows = [{"id": "1", "kind": "diameter", "nominal": 36.0, "measured": 35.982, "deviation": -0.018, "lower": -0.05,
+             "upper": 0.05, "U": 0.0031, "verdict": "ok"},
+            {"id": "2", "kind": "distance", "nominal": 6.0, "measured": 6.071, "deviation": 0.071, "lower": -0.05,
+             "upper": 0.05, "U": 0.0022, "verdict": "nok"},
+            {"id": "3", "kind": "flatness", "nominal": 0.0, "measured": None, "deviation": None, "lower": 0.0,
+             "upper": 0.01, "U": None, "verdict": "not_measurable", "reason": "12 points"}]
+    folder = _result_folder(tmp_path / "chars", verdict="fail", extras={"characteristics": rows})
+    pages, text = read_pdf(render_pdf(folder))
+    assert pages == 1 and "Characteristics (3, 1 NOK)" in text
+    assert "1 diameter 36.0000 35.9820 -0.0180 -0.050 / +0.050 0.0031 OK" in text
+    assert "2 distance 6.0000 6.0710 +0.0710 -0.050 / +0.050 0.0022 NOK" in text
+    assert "3 flatness 0.0000 — — +0.000 / +0.010 — NOT MEASURABLE" in text
+    _, without = read_pdf(render_pdf(_result_folder(tmp_path / "none")))
+    assert "Characteristics" not in without
