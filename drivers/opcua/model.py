@@ -118,6 +118,12 @@ VARIABLES: tuple[Variable, ...] = (
     Variable("CalibrationFlagged", "String", "r", "result",
              "The cameras that disagree, comma-separated (e.g. cam07), as of the last inspection that checked the "
              "calibration; empty when none.", ""),
+    Variable("CharacteristicsNok", "String", "r", "result",
+             "The ids of the last part's characteristics out of tolerance (the recipe's [[characteristics]]), "
+             "comma-separated; empty when none (or none measured).", ""),
+    Variable("Characteristics", "String", "r", "result",
+             "The last part's characteristics as JSON: a list of {id, kind, measured, deviation, lower, upper, U, "
+             "verdict (ok, nok, not_measurable)}, in mm or degrees; [] when the recipe measures none.", "[]"),
     Variable("ErrorText", "String", "r", "result",
              "One line: why the verdict is error or aborted, or why the last write or call was refused; "
              "empty when all went well.", ""),
@@ -125,7 +131,7 @@ VARIABLES: tuple[Variable, ...] = (
              "The result as JSON (counter, part_id, capture, verdict, error, recipe, cycle_s, run_s (Session.run), "
              "inspection_s (the stages), worst_deviation_mm, defect_count, defects (at most 10), result_dir (the "
              "result folder's name, relative to the server's --out folder: no server path is shown to any reader), "
-             "triggered_at, calibration: {flagged, off_px per camera} or null; recovered: true when a restart "
+             "triggered_at, calibration: {flagged, off_px per camera} or null; characteristics: as Characteristics; recovered: true when a restart "
              "published it again).", "{}"),
     Variable("ResultCounter", "UInt32", "r", "result",
              "+1 for every accepted trigger, written after the result's other variables (so a PLC polling it "

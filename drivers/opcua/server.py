@@ -16,7 +16,8 @@ subscriptions and refusals while ``Busy``. The handshake:
 * an accepted trigger sets ``Busy`` and clears ``Ready`` before the call returns;
 * its result is published in one turn of the event loop, in this order: ``Verdict``,
   ``VerdictCode``, ``ResultPartId``, ``CycleTime``, ``WorstDeviation``, ``DefectCount``,
-  ``CalibrationOk`` and ``CalibrationFlagged`` (when the part checked the calibration),
+  ``CalibrationOk`` and ``CalibrationFlagged`` (when the part checked the calibration), ``CharacteristicsNok``
+  and ``Characteristics`` (the measured characteristics),
   ``ErrorText``, ``LastResult``, then ``ResultCounter`` (+1, exactly once per accepted
   trigger, whatever the verdict: pass, fail, error or aborted), then ``Trigger`` back to
   false, ``Busy`` false, ``Ready`` and ``State``. A PLC that sees the counter change reads
@@ -659,6 +660,9 @@ class InspectorServer:
         if cal is not None:  # checked: the calibration state is this part's; else it stays
             await self._set("CalibrationOk", not cal["flagged"])
             await self._set("CalibrationFlagged", ",".join(cal["flagged"]))
+        chars = rec.get("characteristics") or []
+        await self._set("CharacteristicsNok", ",".join(str(c["id"]) for c in chars if c.get("verdict") == "nok"))
+        await self._set("Characteristics", json.dumps(chars, separators=(",", ":"), allow_nan=False))
         await self._set("ErrorText", rec.get("error") or "")
         await self._set("LastResult", json.dumps(rec, separators=(",", ":"), default=str, allow_nan=False))
         await self._set("ResultCounter", self._counter)
@@ -790,7 +794,16 @@ def _record(result: Any, folder: Path | None) -> dict[str, Any]:
             "worst_deviation_mm": worst, "defect_count": len(result.defects), "defects": defects,
             "result_dir": folder.name if folder is not None else None,  # relative to --out: no server path
             "triggered_at": None if meta.get("timestamp") is None else str(meta["timestamp"]),
-            "calibration": _calibration(result.stats)}
+            "calibration": _calibration(result.stats), "characteristics": _characteristics(result)}
+
+
+def _characteristics(result: Any) -> list[dict[str, Any]]:
+    """The result's characteristics as the PLC reads them (issue 28): a few numbers each."""
+    from inspector.characteristics.definitions import rows_of
+
+    keys = ("id", "kind", "measured", "deviation", "lower", "upper", "U", "verdict")
+    return [{k: (_finite(r.get(k)) if k in ("measured", "deviation", "lower", "upper", "U") else r.get(k))
+             for k in keys} for r in rows_of(result)]
 
 
 def _calibration(stats: Any) -> dict[str, Any] | None:

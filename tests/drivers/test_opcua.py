@@ -399,6 +399,46 @@ def test_the_calibration_state_is_published_with_the_result(cell):
     assert ok3 == [True, ""]
 
 
+def test_the_characteristics_are_published_with_the_result(cell):
+    """A result with measured characteristics (issue 28): their values and the NOK ids, before
+    ResultCounter; a result without any publishes an empty list."""
+    from inspector.model import InspectionResult
+    from inspector_drivers.opcua.server import _record
+
+    rows = [{"id": "1", "kind": "diameter", "nominal": 36.0, "measured": 35.982, "deviation": -0.018, "lower": -0.05,
+             "upper": 0.05, "u": 0.0015, "U": 0.003, "verdict": "ok", "points": 812, "reason": None},
+            {"id": "7", "kind": "distance", "nominal": 6.0, "measured": 6.071, "deviation": 0.071, "lower": -0.05,
+             "upper": 0.05, "u": 0.001, "U": 0.002, "verdict": "nok", "points": 403, "reason": None},
+            {"id": "9", "kind": "flatness", "nominal": 0.0, "measured": None, "deviation": None, "lower": 0.0,
+             "upper": 0.01, "u": None, "U": None, "verdict": "not_measurable", "points": 3, "reason": "3 points"}]
+
+    def published(chars: list | None) -> None:
+        res = InspectionResult(capture="CHR", recipe="opcua-fast", verdict="fail" if chars else "pass", error=None,
+                               timings_s={"total": 0.1}, extras={} if chars is None else {"characteristics": chars})
+        asyncio.run_coroutine_threadsafe(cell.server._publish(_record(res, None)), cell.server._loop).result(WAIT_S)
+
+    async def main():
+        async with plc(cell) as p:
+            out = []
+            for chars in (rows, None):
+                before = await p.read("ResultCounter")
+                published(chars)
+                res = await p.result_after(before)
+                out.append((await p.read("CharacteristicsNok", "Characteristics"), json.loads(res["LastResult"])))
+            return out
+
+    ((nok, text), last), ((nok2, text2), last2) = run(main())
+    assert nok == "7"
+    assert json.loads(text) == last["characteristics"] == [
+        {"id": "1", "kind": "diameter", "measured": 35.982, "deviation": -0.018, "lower": -0.05, "upper": 0.05,
+         "U": 0.003, "verdict": "ok"},
+        {"id": "7", "kind": "distance", "measured": 6.071, "deviation": 0.071, "lower": -0.05, "upper": 0.05,
+         "U": 0.002, "verdict": "nok"},
+        {"id": "9", "kind": "flatness", "measured": None, "deviation": None, "lower": 0.0, "upper": 0.01, "U": None,
+         "verdict": "not_measurable"}]
+    assert (nok2, json.loads(text2), last2["characteristics"]) == ("", [], [])
+
+
 def test_an_anonymous_reader_sees_no_server_path(cell):
     """Issue 27 finding 10: LastResult showed the result folder's absolute path (and an error
     its files') to every reader. Now result_dir is the folder's name in --out, and the out
