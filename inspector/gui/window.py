@@ -443,9 +443,20 @@ class MainWindow(QMainWindow):
             return Source(watch={"folder": str(self.watch)}, limit=None if continuous else 1)
         return Source(limit=None if continuous else 1)
 
+    def _refused_for_role(self) -> bool:
+        """On a production station the operator runs only recipes an engineer approved
+        (issue 27, :meth:`~inspector.roles.RoleSession.run_problem`): the banner says why."""
+        if self.session is None:
+            return False
+        problem = self.roles.run_problem(self.session.recipe)
+        if problem is None:
+            return False
+        self.banner.set_state("error", self.tr("this recipe may not run in the operator role"), problem)
+        return True
+
     def inspect(self) -> bool:
         """INSPECT: one part from the source; False when nothing could start."""
-        if self.worker is None or self.worker.busy:
+        if self.worker is None or self.worker.busy or self._refused_for_role():
             return False
         self.live = False
         started = self.worker.start(self._source(continuous=False))
@@ -461,6 +472,9 @@ class MainWindow(QMainWindow):
             self.live_button.setChecked(False)
             return
         if self.live_button.isChecked() and not self.worker.busy:
+            if self._refused_for_role():
+                self.live_button.setChecked(False)
+                return
             self.live = True
             self.worker.start(self._source(continuous=True))
         elif not self.live_button.isChecked() and self.live:

@@ -240,6 +240,25 @@ def test_broken_recipe_is_greyed_and_inspect_disabled(make_window, qtbot, tmp_pa
     assert w.worker is None and w.current_result is None
 
 
+def test_a_production_station_runs_only_an_approved_recipe_for_the_operator(make_window, qtbot, tmp_path):
+    from inspector import approval, roles
+
+    cfg = tmp_path / "config"
+    roles.set_password("cell-secret-1", config_dir=cfg)
+    roles.set_production_mode(True, "erin", config_dir=cfg)
+    out = tmp_path / "gui"
+    w = make_window(out=out, config_dir=cfg)
+    assert w.roles.role == roles.OPERATOR
+    assert not w.inspect()  # not approved: nothing starts, the banner says why
+    assert w.banner.state == "error" and "production mode" in w.banner.reason.text()
+    w.live_button.setChecked(True)
+    w.toggle_live()
+    assert not w.live_button.isChecked() and not w.worker.busy
+    approval.approve(w.session.recipe, "erin", config_dir=cfg)
+    summary = _inspect_with_key(qtbot, w)  # approved: the operator inspects
+    assert summary.counts["pass"] == 1 and w.banner.state == "pass"
+
+
 def test_roles_lock_editor_and_idle_fallback(make_window, qtbot, tmp_path):
     from inspector import roles
 

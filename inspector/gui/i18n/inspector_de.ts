@@ -248,6 +248,10 @@
         <translation>Prüfplan {name} ({file}, sha256 {sha}) · {source} · Ergebnisse in {out}</translation>
     </message>
     <message>
+        <source>this recipe may not run in the operator role</source>
+        <translation>dieser Prüfplan darf in der Rolle Bediener nicht laufen</translation>
+    </message>
+    <message>
         <source>LIVE stopping after the part in progress…</source>
         <translation>Dauerbetrieb endet nach dem laufenden Teil…</translation>
     </message>

@@ -248,6 +248,10 @@
         <translation>receta {name} ({file}, sha256 {sha}) · {source} · resultados en {out}</translation>
     </message>
     <message>
+        <source>this recipe may not run in the operator role</source>
+        <translation>esta receta no puede ejecutarse en el rol de operador</translation>
+    </message>
+    <message>
         <source>LIVE stopping after the part in progress…</source>
         <translation>el modo continuo se detiene tras la pieza en curso…</translation>
     </message>
