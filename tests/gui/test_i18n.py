@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from PySide6.QtCore import QCoreApplication, QEvent
 
 pytestmark = [pytest.mark.gui, pytest.mark.slow]
 
@@ -92,20 +91,6 @@ def _untranslated(en: list[tuple[str, str]], other: list[tuple[str, str]], lang:
     return bad
 
 
-def _window(qtbot, tmp_path, lang: str, result: Path):
-    from inspector.gui.i18n import install
-    from inspector.gui.window import MainWindow
-
-    install(lang)
-    w = MainWindow(DEMO, result.parent, config_dir=tmp_path / "config")
-    qtbot.addWidget(w)
-    w.show_on_screen()
-    qtbot.waitExposed(w)
-    assert w.open_result(result)
-    w.flush_drawing()
-    return w
-
-
 def _dialogs(parent):
     from inspector.gui.editor import LoginDialog
     from inspector.gui.viewmodel import CameraThumb
@@ -124,25 +109,51 @@ def fail_result(tmp_path_factory, sim_captures):
     return out / "notched"
 
 
-def test_no_visible_text_is_left_in_english(qtbot, tmp_path, fail_result):
-    from inspector.gui.i18n import install
+#: One window per process: a QMainWindow made after another language's window was closed in
+#: the same process crashed (segfault in its constructor) after the other GUI test files had
+#: run in that process; a language is what a window is started with, so each child starts one.
+_CHILD = """
+import json, sys
+from pathlib import Path
+sys.path.insert(0, sys.argv[4])
+from PySide6.QtTest import QTest
+from PySide6.QtWidgets import QApplication
+app = QApplication([])
+import test_i18n as t
+from inspector.gui.i18n import install
+from inspector.gui.window import MainWindow
+lang, result, config = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
+install(lang)
+w = MainWindow(t.DEMO, result.parent, config_dir=config)
+w.show_on_screen()
+assert QTest.qWaitForWindowExposed(w, 60000)
+assert w.open_result(result)
+w.flush_drawing()
+dialogs = t._dialogs(w)
+out = {"texts": t._texts(w) + [x for d in dialogs for x in t._texts(d)], "word": w.banner.word.text(),
+       "detail": w.banner.detail.text(), "reason": w.banner.reason.text(), "cell": w.defects.item(0, 4).text(),
+       "shift": w.history.shift.title.text()}
+print("JSON " + json.dumps(out), flush=True)
+w.close()
+"""
 
-    texts = {}
-    try:
-        for lang in ("en", "de", "es"):
-            w = _window(qtbot, tmp_path, lang, fail_result)
-            dialogs = _dialogs(w)
-            texts[lang] = _texts(w) + [t for d in dialogs for t in _texts(d)]
-            for d in dialogs:
-                d.close()
-                d.deleteLater()
-            w.close()
-            # The dialogs' deferred deletes run now, while their parent window still exists, not
-            # during the next window's construction (seen once as a crash in QMainWindow()).
-            QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete.value)
-            qtbot.wait(10)
-    finally:
-        install("en")
+
+def _window_texts(tmp_path, lang: str, result: Path) -> dict:
+    """What the window shows in ``lang`` for ``result``, from a process of its own."""
+    import json
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", _CHILD, lang, str(result), str(tmp_path / "config"),
+                          str(Path(__file__).parent)], capture_output=True, text=True, timeout=600)
+    line = next((x for x in run.stdout.splitlines() if x.startswith("JSON ")), None)
+    assert line is not None, f"{lang}: exit {run.returncode}: {run.stderr[-2000:]}"
+    data = json.loads(line[5:])
+    data["texts"] = [tuple(x) for x in data["texts"]]
+    return data
+
+
+def test_no_visible_text_is_left_in_english(tmp_path, fail_result):
+    texts = {lang: _window_texts(tmp_path, lang, fail_result)["texts"] for lang in ("en", "de", "es")}
     assert len(texts["en"]) > 60  # the walk saw the window: menus, buttons, banner, table, shift panel, dialogs
     seen = {t for _, t in texts["en"]}
     assert {"INSPECT", "FAIL", "Engineer login", "Fit (0)", "no error in this shift"} <= seen
@@ -150,21 +161,14 @@ def test_no_visible_text_is_left_in_english(qtbot, tmp_path, fail_result):
         assert _untranslated(texts["en"], texts[lang], lang) == []
 
 
-def test_numbers_and_dates_in_the_locale_format(qtbot, tmp_path, fail_result):
-    from inspector.gui.i18n import install
-
-    try:
-        w = _window(qtbot, tmp_path, "de", fail_result)
-        assert w.banner.word.text() == "NIO"
-        assert re.search(r"Takt \d+,\d\d s", w.banner.detail.text()), w.banner.detail.text()
-        assert re.search(r"Grenzen -0,10 / \+0,10", w.banner.detail.text())
-        assert re.search(r"-\d,\d{3} mm, Grenze -0,100 mm", w.banner.reason.text()), w.banner.reason.text()
-        assert re.fullmatch(r"[-+]\d,\d{3}", w.defects.item(0, 4).text())
-        assert re.search(r"\d{2}\.\d{2}\.\d{2} \d{2}:\d{2} bis \d{2}:\d{2}", w.history.shift.title.text())
-        w.close()
-        w = _window(qtbot, tmp_path, "en", fail_result)
-        assert re.search(r"cycle \d+\.\d\d s", w.banner.detail.text())
-        assert re.fullmatch(r"[-+]\d\.\d{3}", w.defects.item(0, 4).text())
-        w.close()
-    finally:
-        install("en")
+def test_numbers_and_dates_in_the_locale_format(tmp_path, fail_result):
+    de = _window_texts(tmp_path, "de", fail_result)
+    assert de["word"] == "NIO"
+    assert re.search(r"Takt \d+,\d\d s", de["detail"]), de["detail"]
+    assert re.search(r"Grenzen -0,10 / \+0,10", de["detail"])
+    assert re.search(r"-\d,\d{3} mm, Grenze -0,100 mm", de["reason"]), de["reason"]
+    assert re.fullmatch(r"[-+]\d,\d{3}", de["cell"])
+    assert re.search(r"\d{2}\.\d{2}\.\d{2} \d{2}:\d{2} bis \d{2}:\d{2}", de["shift"])
+    en = _window_texts(tmp_path, "en", fail_result)
+    assert re.search(r"cycle \d+\.\d\d s", en["detail"])
+    assert re.fullmatch(r"[-+]\d\.\d{3}", en["cell"])
