@@ -54,6 +54,7 @@ class Target:
     is_list: bool
     lo: float | None
     hi: float | None
+    after: bool = False  # a stage that needs others before it (evaluate.characteristics): added, not swapped
 
     def __str__(self) -> str:  # pytest ids
         return f"{self.owner}.{self.name}"
@@ -84,7 +85,8 @@ def _targets() -> list[Target]:
                 found = _numeric(hints[f.name])
                 if found is not None:
                     out.append(Target(where, owner, getattr(spec, "kind", ""), f.name, *found,
-                                      f.metadata.get("min"), f.metadata.get("max")))
+                                      f.metadata.get("min"), f.metadata.get("max"),
+                                      bool(getattr(spec, "requires", ()))))
     return out
 
 
@@ -92,6 +94,9 @@ PM = create_plugin_manager()  # one for the module: Hypothesis reruns a test bod
 TARGETS = _targets()
 BASE_STAGES = {"segment": "segment.threshold", "carve": "carve.hull", "align": "align.global_icp",
                "bcps": "bcps.ray", "evaluate": "evaluate.tolerance"}
+
+
+EXTRA = "extra"  # the name of a stage added after the base stages
 
 
 def _doc(target: Target | None = None, value: Any = None, tolerance: dict | None = None) -> dict:
@@ -102,6 +107,8 @@ def _doc(target: Target | None = None, value: Any = None, tolerance: dict | None
         table = {"use": target.owner, "params": {target.name: value}}
         if target.where == "driver":
             driver = table
+        elif target.after:
+            stages.append({"name": EXTRA, **table})
         else:
             stages[list(BASE_STAGES).index(target.kind)] = table
     return {"recipe": {"name": "t", "reference": "builtin:cube30"}, "driver": driver, "stages": stages,
@@ -112,7 +119,7 @@ def _key(target: Target) -> str:
     """How a message names the parameter."""
     if target.where == "driver":
         return f"<recipe>: driver.params.{target.name}"
-    return f"<recipe>: stages.{target.kind}.params.{target.name}"
+    return f"<recipe>: stages.{EXTRA if target.after else target.kind}.params.{target.name}"
 
 
 def _bad_values(t: Target) -> st.SearchStrategy:
@@ -173,7 +180,8 @@ def test_every_finite_in_range_parameter_is_still_accepted(data):
     target = data.draw(st.sampled_from([t for t in TARGETS if not t.is_list]), label="parameter")
     value = data.draw(_good_values(target), label="value")
     recipe = parse_recipe(_doc(target, value), PM)
-    params = recipe.driver.params if target.where == "driver" else recipe.steps[list(BASE_STAGES).index(target.kind)].params
+    step = {s.name: s for s in recipe.steps}.get(EXTRA if target.after else target.kind)
+    params = recipe.driver.params if target.where == "driver" else step.params
     assert getattr(params, target.name) == value
 
 
