@@ -5,7 +5,7 @@
     inspector capture --recipe recipes/line3.toml --out captures/ --count 10
 
 Every trigger becomes ``OUT/<capture name>/`` in the CONTRACT layout
-(:func:`~inspector_drivers.replay.folder.write_capture`: ``rig.json`` with the rig's
+(:func:`~inspector.capture_folder.write_capture`: ``rig.json`` with the rig's
 calibration, ``images/``, ``capture.json`` with the driver's metadata, ``truth/`` for simulated
 captures), so any live capture can be inspected again later with
 ``inspector run RECIPE --capture OUT``.
@@ -144,7 +144,7 @@ def _err(msg: str) -> None:
 
 
 def _write(out: Path, cap: Any) -> Path:
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
 
     return save_capture(cap, out / cap.name)
 

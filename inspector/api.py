@@ -12,8 +12,8 @@ listed in :data:`__all__` is public and documented in ``docs/plugins.md`` (gener
 listed here are internal and may change in any release.
 
 The capture-folder reader and writer (``read_capture``, ``write_capture``, ``save_capture``,
-``read_rig``, ``is_capture_folder``) belong to the built-in replay driver and are imported
-from it on first use, so importing this module does not load a driver.
+``read_rig``, ``is_capture_folder``) are the core's capture-folder format
+(:mod:`inspector.capture_folder`), imported on first use.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ from inspector.registry import (
 )
 
 if TYPE_CHECKING:  # imported on first use, see __getattr__
-    from inspector_drivers.replay.folder import is_capture_folder, read_capture, read_rig, save_capture, write_capture
+    from inspector.capture_folder import is_capture_folder, read_capture, read_rig, save_capture, write_capture
 
 __all__ = [
     "API_VERSION",
@@ -121,14 +121,15 @@ __all__ = [
     "write_capture",
 ]
 
-#: Public names provided by the built-in replay driver's capture-folder module, imported on
-#: first use (:func:`__getattr__`).
+#: Public names of the capture-folder format (:mod:`inspector.capture_folder`), imported on
+#: first use (:func:`__getattr__`): it loads the kernels' camera model, which a plugin that
+#: only registers a stage does not need at import.
 _CAPTURE_IO = ("read_capture", "write_capture", "save_capture", "read_rig", "is_capture_folder")
 
 
 def __getattr__(name: str) -> Any:
     if name in _CAPTURE_IO:
-        from inspector_drivers.replay import folder
+        from inspector import capture_folder as folder
 
         value = getattr(folder, name)
         globals()[name] = value

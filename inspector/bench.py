@@ -221,7 +221,7 @@ def _machine() -> dict[str, Any]:
 _SIM_CHILD = """
 import json, sys
 from inspector.params import build_params
-from inspector_drivers.replay.folder import write_capture
+from inspector.capture_folder import write_capture
 from inspector_drivers.sim.simulate import SimParams, simulate
 folder, name, table = sys.argv[1], sys.argv[2], json.loads(sys.argv[3])
 p = build_params(SimParams, table, "bench")
@@ -252,7 +252,7 @@ def _acquisition(folder: Path) -> Any:
     import dataclasses
 
     from inspector.registry import Acquisition
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     def load() -> Any:
         cap = read_capture(folder)
@@ -753,13 +753,13 @@ def run(args: argparse.Namespace) -> int:
             folder = simulate_capture(work / "captures" / f"{args.part}-s{args.seed:04d}", table)
             source = f"simulated: part {args.part}, seed {args.seed}, {args.mm_per_px} mm/px"
         from inspector.errors import InspectorError
-        from inspector_drivers.replay.folder import RIG_FILE, read_rig
+        from inspector.capture_folder import RIG_FILE, read_rig
 
         try:
             cams = list(read_rig(folder / RIG_FILE).cameras)
         except InspectorError:
             cams = []  # the inspection reports the problem
-        cap_info = {"name": folder.name, "source": source, "cameras": len(cams),
+        cap_info: dict[str, Any] = {"name": folder.name, "source": source, "cameras": len(cams),
                     "width": cams[0].width if cams else None, "height": cams[0].height if cams else None}
         say("Compiling the kernels in a child process (once per install; seconds when cached) ...")
         compiled = compile_kernels(args.recipe, recipe.reference, folder, work / "compile")
@@ -779,7 +779,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"inspector: error: bench: the inspection failed: {failed[0]['error']}", file=sys.stderr)
             return 3
         say("Carving comparison on the same capture ...")
-        from inspector_drivers.replay.folder import read_capture
+        from inspector.capture_folder import read_capture
 
         carving = compare_carving(read_capture(folder), recipe, carve_voxel=args.carve_voxel, open3d_voxel=args.open3d_voxel,
                                   carve_runs=args.carve_runs, use_open3d=not args.no_open3d,

@@ -141,8 +141,7 @@ def inspect_folder(setup: WorkerSetup, folder: str) -> tuple[InspectionResult, s
     local run; only a bug of this wrapper raises (and the task is retried).
     """
     from inspector.runner import _error_result, inspect_capture
-    from inspector_drivers.replay import named_acquisition
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import named_acquisition, read_capture
 
     acq = named_acquisition(Path(folder), read_capture)
     t0 = time.perf_counter()
@@ -239,7 +238,7 @@ def _run(session: Session, captures: Sequence[str], scheduler: str | None, worke
          progress: bool, retries: int) -> RunSummary:
     from inspector.runner import ABORTED, Outcome, _error_result
     from inspector.session import VERDICTS, Inspected, RunEnded, RunStarted, RunSummary, Warned, _distinct_names, _result_folder
-    from inspector_drivers.replay import expand, named_acquisition
+    from inspector.capture_folder import expand, named_acquisition
 
     setup = worker_setup(session)
     folders = _distinct_names(expand([str(c) for c in captures]))

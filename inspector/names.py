@@ -104,6 +104,6 @@ def folder_name(folder: str | os.PathLike[str]) -> str:
     """The name a capture folder gives its capture: the last part of its absolute path,
     without resolving links (``caps/a/..`` is ``caps``; ``.`` is the current folder's name).
 
-    The same rule as :func:`inspector_drivers.replay.folder.read_capture`'s ``Capture.name``.
+    The same rule as :func:`inspector.capture_folder.read_capture`'s ``Capture.name``.
     """
     return Path(os.path.abspath(folder)).name

@@ -133,7 +133,7 @@ def precompile(work: Path, say: Callable[[str], None] = print, parallel: int = 2
     from inspector.resources import recipe_path
     from inspector.runner import run_batch
     from inspector.session import Session
-    from inspector_drivers.replay.folder import read_capture, save_capture
+    from inspector.capture_folder import read_capture, save_capture
     from inspector_drivers.sim.simulate import SimParams, simulate
 
     from inspector.registry import Acquisition

@@ -302,7 +302,7 @@ def _now() -> str:
 
 
 def _history_path(outdir: str | os.PathLike[str]) -> Path:
-    from inspector_plugins.history import HISTORY_FILE
+    from inspector.history_store import HISTORY_FILE
 
     return Path(outdir) / HISTORY_FILE
 
@@ -468,7 +468,7 @@ def read_audit(outdir: str | os.PathLike[str] | None, *, last: int | None = None
         if outdir is None:
             raise InputError(f"{path}: no station audit yet (set-password, recipe approve and production write it)")
         raise InputError(f"{path}: no history (the station and inspector run write it in OUTDIR)")
-    from inspector_plugins.history import read_table
+    from inspector.history_store import read_table
 
     return read_table(path, "audit", _AUDIT_COLUMNS, last=last) or []
 

@@ -329,7 +329,7 @@ class Session:
         def recorded(name: str) -> bool | None:
             if "history" not in self.pm.plugin_names():
                 return None
-            from inspector_plugins.history import recorded as in_history
+            from inspector.history_store import recorded as in_history
 
             return in_history(outdir, name)
 
@@ -341,21 +341,23 @@ class Session:
     def _open_source(self, source: Source) -> tuple[Any, Iterator[Acquisition], int | None, str, bool]:
         """(driver, acquisitions, total, what, whether this run owns the driver)."""
         if source.watch is not None:
-            from inspector_drivers.replay.hotfolder import HotFolderDriver, HotFolderParams
-
             folder = source.watch.get("folder")
             if not folder or not Path(folder).is_dir():
                 raise RecipeError(f"--watch {folder}: not a folder")
-            driver = HotFolderDriver(HotFolderParams(**source.watch))
+            # The hot folder is a driver like any other, found through the plugin manager.
+            if "hotfolder" not in self.pm.drivers:
+                raise RecipeError(f"--watch {folder}: {self.pm.missing('driver', 'hotfolder')}")
+            spec = self.pm.driver("hotfolder")
+            driver = spec.open(spec.params(**source.watch))
             total = source.watch.get("count") or source.limit or None
             return driver, driver.acquire(), total, f"watch {folder}", True
         if source.captures:
-            from inspector_drivers.replay import ReplayDriver, ReplayParams, expand
+            from inspector import capture_folder
 
-            folders = _distinct_names(expand(list(source.captures)))
-            driver = ReplayDriver(ReplayParams(tuple(str(f) for f in folders)))
+            folders = _distinct_names(capture_folder.expand(list(source.captures)))
+            acquisitions = (capture_folder.named_acquisition(f, capture_folder.read_capture) for f in folders)
             total = min(len(folders), source.limit or len(folders))
-            return driver, driver.acquire(), total, "captures", True
+            return None, acquisitions, total, "captures", False
         if self._stream is None:
             self._open_stream()
         count = getattr(self.recipe.driver.params, "count", None)

@@ -220,7 +220,7 @@ class RunResult:
     def history(self) -> list[dict[str, Any]]:
         """The run's ``history.sqlite`` rows, oldest first (the built-in ``history`` plugin),
         their ``extras`` and ``metadata`` JSON columns decoded."""
-        from inspector_plugins.history import read_history
+        from inspector.history_store import read_history
 
         rows = read_history(self.outdir)
         for row in rows:

@@ -26,6 +26,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 from urllib.parse import unquote, urlsplit
 
+from inspector.history_store import COLUMNS, DEFECT_COLUMNS
+
 __all__ = ["COLUMNS", "DEFECT_COLUMNS", "PG_ADDED", "PG_SCHEMA", "PlantDatabase", "PlantUnavailable", "check_url", "mask_url", "scrub"]
 
 #: The plant tables: ``history.sqlite``'s, column for column, plus ``cell`` and ``uid``.
@@ -70,14 +72,9 @@ PG_SCHEMA = (
     "CREATE INDEX IF NOT EXISTS defects_inspection ON defects (inspection_id)",
 )
 
-#: The row columns (``id`` aside), in the order of ``history.sqlite`` and of :data:`PG_SCHEMA`.
-COLUMNS = ("inspected_at", "capture", "part_id", "triggered_at", "recipe", "verdict", "error", "n_points",
-           "deviation_mean_mm", "deviation_min_mm", "deviation_max_mm", "n_defects", "worst_mm", "tolerance_lower_mm",
-           "tolerance_upper_mm", "total_s", "result_dir", "metadata", "extras", "cell", "uid", "calibration_json", "chain")
 #: Columns added to the plant tables since they were first made, with their type: a database
 #: made by an older version gets them when a cell connects (its older rows have NULL there).
 PG_ADDED = (("calibration_json", "TEXT"), ("chain", "TEXT"))
-DEFECT_COLUMNS = ("kind", "n_points", "worst_mm", "x", "y", "z", "region")
 
 _INSERT = (f"INSERT INTO inspections ({', '.join(COLUMNS)}) VALUES ({', '.join(['%s'] * len(COLUMNS))})"
            " ON CONFLICT (uid) DO NOTHING RETURNING id")

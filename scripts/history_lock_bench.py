@@ -66,7 +66,7 @@ def _phase(pm, recipe, out: Path, cell: str, seconds: float, inspect_s: float, l
     import psycopg
 
     from inspector.model import InspectionResult
-    from inspector_plugins import history
+    from inspector import history_store
 
     locker = None
     if lock_url is not None:
@@ -82,7 +82,7 @@ def _phase(pm, recipe, out: Path, cell: str, seconds: float, inspect_s: float, l
             pm.on_result(result, out / result.capture)
             n += 1
         elapsed = time.monotonic() - t0
-        waiting = history.spooled(out)
+        waiting = history_store.spooled(out)
     finally:
         if locker is not None:
             locker.rollback()  # releases the lock
@@ -99,6 +99,7 @@ def main() -> int:
     args = ap.parse_args()
     from inspector.manager import create_plugin_manager
     from inspector.recipe import parse_recipe
+    from inspector import history_store
     from inspector_plugins import history
 
     root = Path(tempfile.mkdtemp(prefix="lock-bench-"))
@@ -123,7 +124,7 @@ def main() -> int:
 
         with psycopg.connect(url) as con:
             got = con.execute("SELECT COUNT(*), COUNT(DISTINCT uid) FROM inspections WHERE cell = %s", (cell,)).fetchone()
-        local = len(history.read_history(out))
+        local = len(history_store.read_history(out))
         for name, (n, s, waiting) in phases:
             print(f"{name:7s} {n:6d} parts in {s:5.1f} s = {60 * n / s:7.1f} parts/min; {waiting} in the spool at the phase's end")
         print(f"after the lock: {left} left in the spool; plant rows {got[0]} ({got[1]} distinct uids) of {local} recorded "

@@ -53,7 +53,7 @@ class Session(Protocol):
 
 def load_rig(path: str, driver: str) -> Rig:
     """The rig of ``params.rig`` (``rig.json``, or a capture folder holding one)."""
-    from inspector_drivers.replay.folder import RIG_FILE, read_rig
+    from inspector.capture_folder import RIG_FILE, read_rig
 
     if not path:
         raise InputError(f"{driver}: parameter 'rig' is required (path to a rig.json with the cameras' calibration)")
@@ -73,7 +73,7 @@ def load_backgrounds(path: str, rig: Rig, driver: str) -> dict[str, np.ndarray]:
     in the folder that holds ``rig.json`` (``inspector calibrate --background --out FOLDER``),
     attached to every capture so the segment stage flat-fields it. ``{}`` without that folder;
     a camera without its image, or an image that does not fit its camera, is an InputError."""
-    from inspector_drivers.replay.folder import BACKGROUND_DIR, _decode_png
+    from inspector.capture_folder import BACKGROUND_DIR, _decode_png
 
     p = Path(path).expanduser()
     folder = p if p.is_dir() else p.parent

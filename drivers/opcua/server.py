@@ -551,7 +551,7 @@ class InspectorServer:
             self.log(f"warning: recovering {printable(name)}: {folder / outputs.RESULT_JSON} cannot be read ({e})")
             return None
         if "history" in self.pm.plugin_names():
-            from inspector_plugins.history import recorded
+            from inspector.history_store import recorded
 
             if recorded(self.outdir, name) is False:  # killed before its row: the hooks that record it, now
                 recipe = self._session.recipe

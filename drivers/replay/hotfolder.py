@@ -9,8 +9,8 @@ runner once it is complete and quiet:
 
 * ``rig.json`` exists and parses, ``images/`` holds a PNG for every camera it names, and every
   PNG of the folder is whole (a valid header, and the final ``IEND`` chunk at its end:
-  :func:`~inspector_drivers.replay.folder.is_complete_png`), and ``capture.json``, if there is
-  one, parses (:func:`~inspector_drivers.replay.folder.write_capture` writes ``rig.json``
+  :func:`~inspector.capture_folder.is_complete_png`), and ``capture.json``, if there is
+  one, parses (:func:`~inspector.capture_folder.write_capture` writes ``rig.json``
   last, so its folders are complete as soon as ``rig.json`` appears; other writers need not
   be);
 * nothing in the folder changed (names, sizes, modification times) for ``settle_s``.
@@ -125,7 +125,7 @@ def _complete(folder: Path) -> bool:
     a whole PNG (a writer stalled inside one leaves it without its end), and ``capture.json``,
     if there is one, parses.
     """
-    from inspector_drivers.replay.folder import is_complete_png
+    from inspector.capture_folder import is_complete_png
 
     try:
         data = load_json(folder / "rig.json", "rig.json")
@@ -353,8 +353,8 @@ class HotFolderDriver:
         self._file_away(folder)
 
     def acquire(self) -> Iterator[Acquisition]:
-        from inspector_drivers.replay import named_acquisition
-        from inspector_drivers.replay.folder import read_capture
+        from inspector.capture_folder import named_acquisition
+        from inspector.capture_folder import read_capture
 
         n = 0
         last_new = self.clock()

@@ -133,7 +133,7 @@ def _read_text(path: Path) -> str:
 
 def _read_image(path: Path) -> np.ndarray:
     """Any image cv2 reads -> uint8/uint16 array, grey (H, W), RGB or RGBA (cv2's BGR swapped)."""
-    from inspector_drivers.replay.folder import decode_image, to_rgb_order
+    from inspector.capture_folder import decode_image, to_rgb_order
 
     img = decode_image(path, _label(path), InputError, png_only=False)
     if img.dtype not in (np.uint8, np.uint16):
@@ -285,7 +285,7 @@ def _write(
     info: dict[str, Any],
     overwrite: bool,
 ) -> Path:
-    from inspector_drivers.replay.folder import write_capture
+    from inspector.capture_folder import write_capture
 
     try:
         return write_capture(
@@ -1025,7 +1025,7 @@ def leave_one_out_iou(
     import time
 
     from inspector.kernels.carving import carve
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
     from inspector_plugins.segment import segment_image
 
     t0 = time.perf_counter()
@@ -1136,7 +1136,7 @@ def run(args: argparse.Namespace) -> int:
         for f in folders:
             print(f"wrote {f}", flush=True)
         if getattr(args, "validate", False):
-            from inspector_drivers.replay.folder import read_rig
+            from inspector.capture_folder import read_rig
 
             for f in folders:
                 voxel = args.voxel_mm or 2.0 * read_rig(Path(f) / "rig.json").footprint_mm()

@@ -85,7 +85,7 @@ def _flag(name: str) -> str:
 
 def simulate_command(args: argparse.Namespace) -> int:
     from inspector.params import build_params, describe_params
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
     table = {d["name"]: getattr(args, d["name"]) for d in describe_params(SimParams)
@@ -112,7 +112,7 @@ def _simulate_target(args: argparse.Namespace, table: dict[str, Any]) -> int:
     """``simulate --target``: one capture folder per pose of the calibration target."""
     from inspector.calibration.target import load_target
     from inspector.params import build_params
-    from inspector_drivers.replay.folder import read_rig, save_capture
+    from inspector.capture_folder import read_rig, save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig
     from inspector_drivers.sim.target import simulate_target
 
@@ -157,7 +157,7 @@ def demo_command(args: argparse.Namespace) -> int:
     from inspector.outputs import read_ply
     from inspector.params import build_params
     from inspector.resources import recipe_path
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
     out = Path(args.out)

@@ -170,7 +170,7 @@ def _kind(img: np.ndarray) -> str:
 
 def _check_rig(folder: Path, names: Sequence[str], sizes: dict[str, tuple[int, int]]) -> None:
     """A ``rig.json`` in ``folder`` must list exactly the cameras of the frames, at their sizes."""
-    from inspector_drivers.replay.folder import RIG_FILE, read_rig
+    from inspector.capture_folder import RIG_FILE, read_rig
 
     p = folder / RIG_FILE
     if not p.is_file():
@@ -195,7 +195,7 @@ def run_background(args: argparse.Namespace) -> int:
     import cv2
 
     from inspector.calibration.solve import capture_folders, find_cameras
-    from inspector_drivers.replay.folder import BACKGROUND_DIR, decode_image
+    from inspector.capture_folder import BACKGROUND_DIR, decode_image
 
     for flag in ("target", "rig", "correct", "reference", "recipe", "report"):
         if getattr(args, flag, None):

@@ -557,8 +557,7 @@ def load_inputs(captures: str, reference: str, recipe: str | None, rig_path: str
     from inspector.recipe import load_recipe
     from inspector.reference import Reference
     from inspector.resources import recipe_path
-    from inspector_drivers.replay import expand
-    from inspector_drivers.replay.folder import is_capture_folder, read_rig
+    from inspector.capture_folder import expand, is_capture_folder, read_rig
 
     try:
         rig = read_rig(rig_path)
@@ -585,7 +584,7 @@ def load_inputs(captures: str, reference: str, recipe: str | None, rig_path: str
 
 def _read_with_rig(folder: Path, rig: Rig) -> Any:
     """The capture in ``folder`` with ``rig`` in place of its own (same cameras and image sizes)."""
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     try:
         cap = read_capture(folder)
@@ -766,7 +765,7 @@ def run_refine(args: argparse.Namespace) -> int:
 
 def _check_folder(folder: Path, rig: Rig) -> None:
     """The capture folder's cameras are the rig's (its rig.json names them), without reading images."""
-    from inspector_drivers.replay.folder import parse_rig
+    from inspector.capture_folder import parse_rig
 
     try:
         theirs = parse_rig(json.loads((folder / "rig.json").read_text(encoding="utf-8")), "rig.json")

@@ -183,7 +183,7 @@ def capture_folders(root: Path) -> list[Path]:
 def find_cameras(folders: Sequence[Path]) -> tuple[list[str], dict[str, tuple[int, int]], dict[tuple[int, str], Path]]:
     """Camera names (in a ``rig.json``'s order when one lists them all, else name order), each
     camera's ``(width, height)`` from its PNG headers, and ``{(capture, camera): image}``."""
-    from inspector_drivers.replay.folder import png_header
+    from inspector.capture_folder import png_header
 
     sizes: dict[str, tuple[int, int]] = {}
     where: dict[str, str] = {}
@@ -230,7 +230,7 @@ def _rig_order(folder: Path) -> list[str] | None:
 
 def _fallback_rig(folders: Sequence[Path]) -> dict[str, Any]:
     """Cameras of the first readable ``rig.json`` of the captures, by name (fallback guesses)."""
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     for folder in folders:
         if (folder / "rig.json").is_file():
@@ -328,7 +328,7 @@ def detect(target: Target, jobs: Sequence[tuple[int, int, Path, tuple[int, int],
     """Detect the target's boards in every image of ``jobs`` ``(capture, camera, path, size,
     label)``, on one thread per core. Returns the boards seen (at least :data:`MIN_CORNERS`
     corners) and the markers found per ``(capture, camera)``."""
-    from inspector_drivers.replay.folder import decode_image
+    from inspector.capture_folder import decode_image
 
     local: dict[int, _Detectors] = {}
     lock = threading.Lock()
@@ -362,7 +362,7 @@ def _diagnose_nothing(target: Target, jobs: Sequence[tuple[int, int, Path, tuple
     dictionary (the description does not match), or no marker at all (no target)."""
     import cv2
 
-    from inspector_drivers.replay.folder import decode_image
+    from inspector.capture_folder import decode_image
 
     # a few images spread over the captures and cameras
     sample = list(jobs)[:: max(1, len(jobs) // 6)][:6]

@@ -189,7 +189,7 @@ def _sim_table(recipe: Recipe) -> dict[str, Any]:
 
 def _rig_file(path: str, flag: str) -> tuple[Rig, str]:
     from inspector.errors import CaptureError, RecipeError
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     p = Path(path).expanduser()
     if p.is_dir():
@@ -406,7 +406,7 @@ def _worker_context(spec: Mapping[str, Any]) -> dict[str, Any]:
     from inspector.params import build_params
     from inspector.recipe import parse_recipe
     from inspector.reference import Reference
-    from inspector_drivers.replay.folder import parse_rig
+    from inspector.capture_folder import parse_rig
     from inspector_drivers.sim.simulate import SimParams, sim_rig
 
     cfg = spec["study"]
@@ -473,7 +473,7 @@ def run_sim(spec: Mapping[str, Any]) -> list[dict[str, Any]]:
         capture = simulate(p, 0, ctx["rig"], name=spec["name"])
         row["t_simulate_s"] = time.perf_counter() - t
         if spec.get("save_to"):
-            from inspector_drivers.replay.folder import save_capture
+            from inspector.capture_folder import save_capture
 
             save_capture(capture, Path(spec["save_to"]) / spec["name"], overwrite=True)
         assert capture.truth is not None

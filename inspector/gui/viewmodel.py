@@ -435,7 +435,7 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
     rig_file = folder / "rig.json"
     if rig_file.is_file():  # not a CONTRACT output; used when present
         try:
-            from inspector_drivers.replay.folder import read_rig
+            from inspector.capture_folder import read_rig
 
             names, centres = _centres(read_rig(rig_file))
         except Exception:  # noqa: BLE001 - the rig is optional here

@@ -189,7 +189,7 @@ def _translate_chart(ax: Any, rows: list[dict[str, Any]]) -> None:
 def read_rows(outdir: Path | None) -> list[dict[str, Any]]:
     """The last :data:`HISTORY_ROWS` rows of ``outdir/history.sqlite`` ([] when there is none)."""
     from inspector.errors import InputError
-    from inspector_plugins.history import read_history
+    from inspector.history_store import read_history
 
     if outdir is None:
         return []

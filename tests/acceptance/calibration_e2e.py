@@ -117,7 +117,7 @@ def simulate_target(work: Path, rig_path: Path, poses: int, supersample: int, se
 
 def simulate_parts(folder: Path, part: str, count: int, seed: int, rig: Any) -> list[Path]:
     """``count`` good parts rendered with ``rig`` (reused when there with the same rig)."""
-    from inspector_drivers.replay.folder import read_rig, save_capture
+    from inspector.capture_folder import read_rig, save_capture
     from inspector_drivers.sim.simulate import SimParams
     from inspector_drivers.sim.simulate import simulate as render
 
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from inspector.calibration.command import write_rig
     from inspector.kernels.calibration import compare_rigs
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     # accuracy, not speed, is measured here: on a loaded machine a slow stage must not become an
     # error by the watchdog's limits (the recipe's [budget], read when the recipe is loaded)

@@ -58,7 +58,7 @@ def _inspector() -> str:
 
 def simulate(folder: Path, part: str, count: int, seed: int) -> list[Path]:
     """``count`` good parts in ``folder`` (reused when already there)."""
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig
     from inspector_drivers.sim.simulate import simulate as render
 
@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
             print(proc.stdout[-2000:], proc.stderr[-2000:], file=sys.stderr)
             return 2
         report = json.loads(proc.stdout)
-        from inspector_drivers.replay.folder import read_rig
+        from inspector.capture_folder import read_rig
 
         refined = read_rig(refined_path)
         case = {"title": title, "wall_s": round(wall, 1), "refinement": {k: report[k] for k in (

@@ -109,7 +109,7 @@ def test_kernels_are_compiled_by_a_real_inspection_in_a_child(small_capture, tmp
 
 
 def test_open3d_grid_too_large_is_refused(default_recipe, small_capture):
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     _, recipe, _ = default_recipe
     c = bench.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=0.25, carve_runs=1,
@@ -135,7 +135,7 @@ def test_carving_ratios(default_recipe, small_capture):
     """The target ratio is against our whole carve() call; the informative one leaves out
     only our display mesh."""
     pytest.importorskip("open3d")
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     _, recipe, _ = default_recipe
     c = bench.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=2.0, carve_runs=2)

@@ -21,7 +21,7 @@ CUBE = ROOT / "examples" / "calibration" / "charuco_cube.toml"
 def captures(tmp_path_factory) -> Path:
     """10 poses of the cube seen by 8 cameras (f = 1600 px on 320^2, k1 = 0.1, blur, noise 2)."""
     from inspector.calibration.target import load_target
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.rig import sphere_rig
     from inspector_drivers.sim.target import simulate_target
 
@@ -68,7 +68,7 @@ def _one_line_exit_2(capsys, argv, *, must: str, out: Path | None = None) -> str
 
 def test_calibrates_the_rig_from_rendered_captures(calibrated, captures):
     from inspector.kernels.calibration import compare_rigs
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     rc, out, stdout, stderr = calibrated
     assert rc == 0, stderr
@@ -155,7 +155,7 @@ def test_a_folder_without_the_target(tmp_path, capsys):
 
 def test_captures_of_parts_instead_of_the_target(tmp_path, capsys):
     """A folder of ordinary captures (a part, no target): one line, nothing written."""
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
     p = SimParams(part="cube30", cameras=3, width=160, height=160, mm_per_px=0.3, supersample=1)

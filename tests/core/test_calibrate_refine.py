@@ -45,7 +45,7 @@ KNOCK_PX = 2.0
 
 def _simulate(root: Path, count: int, **params) -> Rig:
     from inspector.params import build_params
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
     p = build_params(SimParams, params, "test")
@@ -99,7 +99,7 @@ def refined(cubes, tmp_path_factory):
 
 
 def test_refine_brings_back_a_knocked_camera(cubes, refined):
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     code, report, out = refined
     assert code == 0
@@ -215,7 +215,7 @@ def _verify(spheres, rig: Path, *extra: str) -> tuple[int, dict]:
 
 
 def test_verify_measures_the_scale_and_corrects_it(spheres):
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     corrected = spheres["root"] / "corrected.json"
     code, v = _verify(spheres, spheres["big"], "--correct", str(corrected))
@@ -250,7 +250,7 @@ def test_refine_with_intrinsics_keeps_the_focal_scale(cubes, tmp_path):
     import contextlib
     import io
 
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     out = tmp_path / "refined.json"
     buf = io.StringIO()

@@ -136,7 +136,7 @@ def _results(out: Path) -> dict[str, dict]:
 
 
 def _history(out: Path) -> list[dict]:
-    from inspector_plugins.history import read_history
+    from inspector.history_store import read_history
 
     return read_history(out)
 

@@ -65,7 +65,7 @@ def test_the_public_api_is_importable_and_versioned():
     assert api.API_VERSION == API_VERSION and re.fullmatch(r"\d+\.\d+", API_VERSION)
     for name in api.__all__:
         assert getattr(api, name) is not None
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     assert api.read_capture is read_capture
 

@@ -85,7 +85,7 @@ def _small_capture(folder: Path) -> Path:
     import cv2
 
     from inspector.model import Camera, Rig
-    from inspector_drivers.replay.folder import write_capture
+    from inspector.capture_folder import write_capture
 
     img = np.full((48, 64), 220.0, np.float32)
     cv2.circle(img, (32, 24), 12, 30.0, -1)

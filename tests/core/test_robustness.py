@@ -408,7 +408,7 @@ def test_one_line_escapes_a_name_with_a_newline():
 
 def _fake_capture(folder: Path, *, rig: Any = None) -> Path:
     """A capture folder with a 1-camera rig.json and a real 16x16 PNG (no rendering)."""
-    from inspector_drivers.replay.folder import write_capture
+    from inspector.capture_folder import write_capture
 
     cam = Camera("c0", 16, 16, [[20.0, 0, 7.5], [0, 20.0, 7.5], [0, 0, 1]], None, np.eye(3), [0.0, 0.0, 100.0])
     write_capture(folder, Rig((cam,)), {"c0": np.zeros((16, 16), np.uint8)})
@@ -571,7 +571,7 @@ def test_a_lone_surrogate_part_id_is_an_error_with_its_history_row(tmp_path, cap
 
 
 def test_history_metadata_is_valid_json_with_nan_and_inf(tmp_path):
-    from inspector_plugins.history import read_history, record
+    from inspector.history_store import read_history, record
 
     meta = {"part_id": "p1", "temp_c": math.nan, "limits": [math.inf, -math.inf, 1.5],
             "nested": {"x": np.float64("nan"), "y": np.float32("inf"), "z": np.float32(2.0)}, "when": time.gmtime(0)[:3]}
@@ -591,7 +591,7 @@ def test_history_metadata_is_valid_json_with_nan_and_inf(tmp_path):
 
 
 def test_history_metadata_of_finite_values_is_unchanged(tmp_path):
-    from inspector_plugins.history import record
+    from inspector.history_store import record
 
     meta = {"part_id": "p1", "timestamp": "2026-12-01T10:00:00", "x": 1.5, "n": 3, "tags": ["a", "b"], "obj": Path("/p")}
     record(dataclasses.replace(_result("p1"), metadata=meta), tmp_path)

@@ -271,7 +271,7 @@ def test_recipe_change_rows_carry_paths_and_hashes(config, fast_hash, tmp_path, 
 
 
 def test_audit_shares_history_sqlite_with_the_inspections(config, fast_hash, tmp_path):
-    from inspector_plugins.history import HISTORY_FILE, SCHEMA, read_history
+    from inspector.history_store import HISTORY_FILE, SCHEMA, read_history
 
     out = tmp_path / "out"
     out.mkdir()

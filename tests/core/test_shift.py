@@ -52,7 +52,8 @@ def _one_day_shift_holding(rows) -> ShiftSettings:
 
 
 def test_shift_counters_equal_the_history_for_the_same_rows(real_history, capsys):
-    from inspector_plugins.history import read_history, tally
+    from inspector.history_store import read_history
+    from inspector_plugins.history import tally
 
     rows = read_history(real_history)
     assert len(rows) == 3
@@ -88,7 +89,7 @@ def test_shift_counters_equal_the_history_for_the_same_rows(real_history, capsys
 
 
 def test_a_shift_that_ended_counts_nothing_of_the_next(real_history):
-    from inspector_plugins.history import read_history
+    from inspector.history_store import read_history
 
     rows = read_history(real_history)
     settings = _one_day_shift_holding(rows)
@@ -118,7 +119,7 @@ def test_shifts_follow_the_local_clock_across_midnight_and_daylight_saving():
 
 
 def _history_with(path: Path, rows: list[tuple[str, str, str | None]], defects: list[tuple[int, float, str]]) -> Path:
-    from inspector_plugins.history import SCHEMA
+    from inspector.history_store import SCHEMA
 
     con = sqlite3.connect(path)
     con.executescript(SCHEMA)

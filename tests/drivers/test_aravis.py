@@ -173,7 +173,7 @@ def test_capture_metadata_names_serial_and_address(emu, client, tmp_path):
         timeout=120,
     )
     assert r["rc"] == 0, r["output"]
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     folders = sorted(p for p in out.iterdir() if p.is_dir())
     assert len(folders) == 2

@@ -22,7 +22,7 @@ import trimesh
 
 from inspector.errors import InputError
 from inspector.model import Camera, Rig
-from inspector_drivers.replay.folder import read_capture
+from inspector.capture_folder import read_capture
 from inspector_drivers.replay.importers import (
     IMPORTERS,
     add_parser,

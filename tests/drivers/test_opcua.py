@@ -36,7 +36,7 @@ from inspector_drivers.opcua import model  # noqa: E402
 from inspector_drivers.opcua.config import ServerSettings, credentials, load_settings, parse_endpoint  # noqa: E402
 from inspector_drivers.opcua.security import CLIENT_URI, make_certificate, make_pki  # noqa: E402
 from inspector_drivers.opcua.server import InspectorServer, ServerThread, part_id_problem  # noqa: E402
-from inspector_plugins.history import read_history  # noqa: E402
+from inspector.history_store import read_history  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPES = Path(__file__).resolve().parent / "opcua_recipes"

@@ -33,7 +33,7 @@ from asyncua import Client, ua  # noqa: E402
 
 from inspector_drivers.opcua import model  # noqa: E402
 from inspector_drivers.opcua.journal import JOURNAL_FILE  # noqa: E402
-from inspector_plugins.history import read_history, recorded  # noqa: E402
+from inspector.history_store import read_history, recorded  # noqa: E402
 
 RECIPES = Path(__file__).resolve().parent / "opcua_recipes"
 INSPECTOR = str(Path(sys.executable).parent / "inspector")
@@ -63,7 +63,7 @@ def inspector_on_result(result, outdir):
     if not _mine(result.metadata):
         return
     if AT == "after-row":  # called after the history plugin: wait for its row, then die
-        from inspector_plugins.history import recorded
+        from inspector.history_store import recorded
         end = time.monotonic() + 60
         while recorded(Path(outdir).parent, result.capture) is not True and time.monotonic() < end:
             time.sleep(0.01)

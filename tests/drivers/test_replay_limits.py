@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 from inspector.errors import CaptureError, InputError
 from inspector.limits import MAX_CAMERAS, MAX_JSON_DEPTH, json_depth, limit, load_json
 from inspector.model import Camera, Rig
-from inspector_drivers.replay.folder import read_capture, read_rig, write_capture
+from inspector.capture_folder import read_capture, read_rig, write_capture
 
 
 def _capture(folder: Path) -> Path:

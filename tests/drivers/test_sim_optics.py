@@ -120,7 +120,7 @@ def _sim_params(**params):
 
 
 def test_background_frames_average_the_noise_and_travel_with_the_capture(tmp_path):
-    from inspector_drivers.replay.folder import read_capture, save_capture
+    from inspector.capture_folder import read_capture, save_capture
 
     cap = _sim(vignetting=0.8, noise_sigma=4.0, background_frames=4)
     bg = cap.backgrounds["cam00"].astype(float)
@@ -147,7 +147,7 @@ def test_the_effects_are_options_of_inspector_simulate():
 def test_inspector_simulate_takes_the_effects_and_writes_the_empty_field(tmp_path):
     import argparse
 
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
     from inspector_drivers.sim.commands import add_simulate_parser, simulate_command
 
     ap = argparse.ArgumentParser()

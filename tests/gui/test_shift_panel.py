@@ -19,7 +19,8 @@ def test_the_shift_panel_counts_what_the_history_has(qtbot, tmp_path, sim_captur
     from inspector.cli import main
     from inspector.gui.window import MainWindow
     from inspector.shift import ShiftSettings
-    from inspector_plugins.history import read_history, tally
+    from inspector.history_store import read_history
+    from inspector_plugins.history import tally
 
     out = tmp_path / "out"
     assert main(["run", str(DEMO), "--capture", str(sim_captures["good"]), str(sim_captures["notched"]),

@@ -26,7 +26,7 @@ def _inspect(capture):
 
 
 def test_a_camera_whose_silhouette_disagrees_is_flagged(sim_captures):
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     cap = read_capture(sim_captures["good"])
     name = cap.rig.names[5]
@@ -52,7 +52,7 @@ def test_a_camera_whose_silhouette_disagrees_is_flagged(sim_captures):
 
 def test_views_from_an_inspection_and_from_its_folder_agree(sim_captures, tmp_path):
     from inspector.outputs import write_result
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     outcome, ref = _inspect(read_capture(sim_captures["notched"]))
     folder = write_result(outcome.result, tmp_path)
@@ -86,7 +86,7 @@ def test_a_camera_the_calibration_health_flags_is_marked(sim_captures, tmp_path)
     from inspector.gui.viewmodel import calibration_flags
     from inspector.model import Rig
     from inspector.outputs import write_result
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     cap = read_capture(sim_captures["good"])
     name = cap.rig.names[7]

@@ -42,7 +42,7 @@ def turned_rig(rig: Rig, name: str, k_px: float, axis: tuple[float, float] = (1.
 def with_turned_camera(capture: Path, out: Path, name: str, k_px: float, axis: tuple[float, float] = (1.0, 0.0)) -> Path:
     """A copy of the capture folder whose rig.json has camera ``name`` turned by ``k_px``
     (the images unchanged: those of the true rig)."""
-    from inspector_drivers.replay.folder import read_rig
+    from inspector.capture_folder import read_rig
 
     folder = Path(shutil.copytree(capture, out))
     rig = turned_rig(read_rig(folder / "rig.json"), name, k_px, axis)
@@ -71,7 +71,7 @@ def measured(small_capture):
     from inspector.params import build_params
     from inspector.pipeline import Band, InspectionContext, Tolerance
     from inspector.reference import Reference
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
     from inspector_plugins.align import AlignParams, run_align
     from inspector_plugins.bcps import RayParams, _run, select_rays
     from inspector_plugins.carve import CarveParams, run_carve
@@ -231,7 +231,7 @@ def test_inspector_run_names_the_camera_and_the_history_plots_it(small_capture, 
     import cv2
 
     from inspector.cli import main
-    from inspector_plugins.history import read_history
+    from inspector.history_store import read_history
 
     recipe = tmp_path / "small.toml"
     recipe.write_text(RECIPE)

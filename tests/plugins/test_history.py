@@ -123,10 +123,11 @@ def _sql(path: Path, *statements: str) -> None:
 
 
 def test_verify_names_the_row_changed_or_removed_with_sqlite3(tmp_path, capsys):
+    from inspector import history_store
     from inspector_plugins import history
 
     for i in range(1, 8):
-        history.record(_result(i), tmp_path, cell="cell-1")
+        history_store.record(_result(i), tmp_path, cell="cell-1")
     db = tmp_path / "history.sqlite"
     assert main(["history", str(tmp_path), "--verify"]) == 0
     assert "chain intact: 7 rows from id 1" in capsys.readouterr().out
@@ -157,10 +158,10 @@ def test_verify_names_the_row_changed_or_removed_with_sqlite3(tmp_path, capsys):
 
 
 def test_an_older_file_gets_the_chain_from_its_next_row(tmp_path, capsys):
-    from inspector_plugins import history
+    from inspector import history_store
 
     con = sqlite3.connect(tmp_path / "history.sqlite")
-    con.executescript(history.SCHEMA.replace(",\n    chain TEXT", ""))  # the version before the chain
+    con.executescript(history_store.SCHEMA.replace(",\n    chain TEXT", ""))  # the version before the chain
     con.execute("CREATE UNIQUE INDEX inspections_uid ON inspections (uid)")
     for k in range(2):
         con.execute("INSERT INTO inspections (inspected_at, capture, recipe, verdict, n_defects) "
@@ -170,11 +171,11 @@ def test_an_older_file_gets_the_chain_from_its_next_row(tmp_path, capsys):
     assert main(["history", str(tmp_path), "--verify"]) == 0
     assert "no row has a hash: all 2 were written before the chain" in capsys.readouterr().out
     for i in (3, 4, 5):
-        history.record(_result(i), tmp_path, cell="cell-1")
+        history_store.record(_result(i), tmp_path, cell="cell-1")
     assert main(["history", str(tmp_path), "--verify"]) == 0
     out = capsys.readouterr().out
     assert "chain intact: 3 rows from id 3; the 2 rows before id 3 were written before the chain" in out
-    assert [r["chain"] is None for r in history.read_history(tmp_path)] == [True, True, False, False, False]
+    assert [r["chain"] is None for r in history_store.read_history(tmp_path)] == [True, True, False, False, False]
     _sql(tmp_path / "history.sqlite", "UPDATE inspections SET verdict = 'pass' WHERE id = 3")
     assert main(["history", str(tmp_path), "--verify"]) == 1
     assert "row id 3 (capture part-0003, pass) was changed" in capsys.readouterr().err

@@ -12,7 +12,7 @@ from PIL import Image
 
 from inspector.cli import main
 from inspector.model import InspectionResult
-from inspector_plugins.history import record
+from inspector.history_store import record
 
 DIAMETERS = [36.002, 35.998, 36.001, 36.004, 35.997, 36.000, 36.003, 35.999, 36.060]  # the last one NOK
 

@@ -30,6 +30,7 @@ import pytest
 from inspector.cli import main
 from inspector.errors import RecipeError
 from inspector.model import Defect, DeviationStats, EvaluationSummary, InspectionResult
+from inspector import history_store
 from inspector_plugins import history
 
 PASSWORD = "plant:p@ss/w0rd"  # a ':', an '@' and a '/' to mask, percent-encoded in the URL
@@ -151,12 +152,12 @@ def test_an_older_file_gets_the_cell_and_uid_columns(tmp_path):
     con.execute("INSERT INTO inspections (inspected_at, capture, recipe, verdict, n_defects) VALUES ('t', 'old', 'r', 'pass', 0)")
     con.commit()
     con.close()
-    history.record(_result(3, "cell-1"), tmp_path, cell="cell-1")
-    rows = history.read_history(tmp_path)
+    history_store.record(_result(3, "cell-1"), tmp_path, cell="cell-1")
+    rows = history_store.read_history(tmp_path)
     assert [(r["capture"], r["cell"]) for r in rows] == [("old", None), ("cell-1-part-0003", "cell-1")]
     assert rows[0]["uid"] is None and len(rows[1]["uid"]) == 36
-    assert [r["capture"] for r in history.read_history(tmp_path, cell="cell-1")] == ["cell-1-part-0003"]
-    assert history.spooled(tmp_path) == 0  # no plant database: nothing waits
+    assert [r["capture"] for r in history_store.read_history(tmp_path, cell="cell-1")] == ["cell-1-part-0003"]
+    assert history_store.spooled(tmp_path) == 0  # no plant database: nothing waits
 
 
 def test_the_plugin_loads_no_database_driver():
@@ -183,7 +184,7 @@ def test_a_database_that_does_not_answer_costs_one_warning_and_the_rows_wait(tmp
     # the others follow silently
     assert re.search(r"; [123] inspections? waits? in the spool of", warnings[0]), warnings[0]
     assert PASSWORD not in err and ENCODED not in err
-    assert _spool(tmp_path / "out") == 3 and len(history.read_history(tmp_path / "out")) == 3
+    assert _spool(tmp_path / "out") == 3 and len(history_store.read_history(tmp_path / "out")) == 3
     assert main(["history", str(tmp_path / "out")]) == 0
     assert "3 of them wait in the spool" in capfd.readouterr().out
     assert main(["history", str(tmp_path / "out"), "--send", "--url", url]) == 3
@@ -330,7 +331,7 @@ def test_two_cells_writing_at_once_lose_and_double_nothing(plant, tmp_path, capf
     assert query("SELECT COUNT(*) FROM defects d JOIN inspections i ON i.id = d.inspection_id"
                  " WHERE i.n_defects = 1 AND d.worst_mm = i.worst_mm") == [(n_defects,)]
     for name in ("cell-a", "cell-b"):
-        local = history.read_history(tmp_path / name)
+        local = history_store.read_history(tmp_path / name)
         assert _spool(tmp_path / name) == 0 and len(local) == n
         pg = query("SELECT inspected_at, capture, part_id, verdict, n_points, deviation_min_mm, worst_mm, metadata,"
                    " extras, uid FROM inspections WHERE cell = %s ORDER BY id", name)
@@ -340,7 +341,7 @@ def test_two_cells_writing_at_once_lose_and_double_nothing(plant, tmp_path, capf
     assert main(["history", "--url", url, "--cell", "cell-b", "--last", "3", "--json"]) == 0
     rows = json.loads(capfd.readouterr().out)
     assert [r["capture"] for r in rows] == [f"cell-b-part-{i:04d}" for i in range(n - 3, n)]
-    assert set(rows[0]) == set(history.read_history(tmp_path / "cell-b")[0])
+    assert set(rows[0]) == set(history_store.read_history(tmp_path / "cell-b")[0])
     assert main(["history", "--url", url]) == 0
     out = capfd.readouterr()
     assert out.out.strip().splitlines()[-1].startswith(f"{2 * n} inspections: ") and "cell-a" in out.out
@@ -443,14 +444,14 @@ def _calibrated(i: int, cell: str, flagged: tuple[str, ...] = ()) -> InspectionR
 def test_the_calibration_health_is_a_column_and_an_older_file_gets_it(tmp_path):
     # A file of the version before (extras, cell, uid and the spool, no calibration_json).
     con = sqlite3.connect(tmp_path / "history.sqlite")
-    con.executescript(history.SCHEMA.replace(",\n    calibration_json TEXT", ""))
+    con.executescript(history_store.SCHEMA.replace(",\n    calibration_json TEXT", ""))
     con.execute("CREATE UNIQUE INDEX inspections_uid ON inspections (uid)")
     con.execute("INSERT INTO inspections (inspected_at, capture, recipe, verdict, n_defects) VALUES ('t', 'old', 'r', 'pass', 0)")
     con.commit()
     con.close()
-    history.record(_calibrated(1, "cell-1", ("cam02",)), tmp_path, cell="cell-1")
-    history.record(_result(2, "cell-1"), tmp_path, cell="cell-1")  # no calibration checked (an error, an older stage)
-    rows = history.read_history(tmp_path)
+    history_store.record(_calibrated(1, "cell-1", ("cam02",)), tmp_path, cell="cell-1")
+    history_store.record(_result(2, "cell-1"), tmp_path, cell="cell-1")  # no calibration checked (an error, an older stage)
+    rows = history_store.read_history(tmp_path)
     assert [r["calibration_json"] is None for r in rows] == [True, False, True]
     doc = json.loads(rows[1]["calibration_json"])
     assert doc["flagged"] == ["cam02"] and doc["threshold_px"] == 0.3
@@ -462,9 +463,9 @@ def test_the_camera_trend_marks_the_flagged_inspections(tmp_path):
     import cv2
 
     for i in range(6):
-        history.record(_calibrated(i, "cell-1", ("cam01",) if i >= 4 else ()), tmp_path, cell="cell-1")
-    history.record(_result(6, "cell-1"), tmp_path, cell="cell-1")  # a gap
-    png = history.plot_cameras(history.read_history(tmp_path), tmp_path / "cameras.png")
+        history_store.record(_calibrated(i, "cell-1", ("cam01",) if i >= 4 else ()), tmp_path, cell="cell-1")
+    history_store.record(_result(6, "cell-1"), tmp_path, cell="cell-1")  # a gap
+    png = history.plot_cameras(history_store.read_history(tmp_path), tmp_path / "cameras.png")
     img = cv2.imread(str(png)).astype(int)
     red = (img[..., 2] > 170) & (img[..., 1] < 60) & (img[..., 0] < 60)  # threshold line, rings
     assert red.sum() > 300
@@ -489,7 +490,7 @@ def test_an_older_plant_database_gets_the_new_columns(plant, tmp_path):
                     " VALUES ('t', 'old', 'r', 'pass', 0, 'cell-0', 'u-0')")
     out = tmp_path / "cell-c"
     out.mkdir()
-    history.record(_calibrated(1, "cell-c", ("cam02",)), out, cell="cell-c", spool=True)
+    history_store.record(_calibrated(1, "cell-c", ("cam02",)), out, cell="cell-c", spool=True)
     plant_db = history.PlantDatabase(url)
     try:
         assert history.flush_spool(out, plant_db) == 1
@@ -541,7 +542,7 @@ def test_a_locked_table_never_holds_the_line_and_every_row_arrives_once(plant, t
             _until(lambda: _waiting_on_inspections(query) == 1, "the sender waits for the lock")
             for i in range(2, 30):
                 cell.inspect(i)  # the line goes on while the sender is stuck in the server
-            assert len(history.read_history(out)) == 30 and _spool(out) == 29
+            assert len(history_store.read_history(out)) == 30 and _spool(out) == 29
             assert _waiting_on_inspections(query) == 1 and locker.info.transaction_status == psycopg.pq.TransactionStatus.INTRANS
         # the run ended (its bounded wait ran out) while the lock is still held: the rows wait in the spool
         assert locker.info.transaction_status == psycopg.pq.TransactionStatus.INTRANS and _spool(out) == 29
@@ -556,7 +557,7 @@ def test_a_locked_table_never_holds_the_line_and_every_row_arrives_once(plant, t
     captures = [c for (c,) in query("SELECT capture FROM inspections ORDER BY id")]
     assert captures == [f"cell-l-part-{i:04d}" for i in range(30)]
     # each row's hash-chain value travels with it: the plant database holds a copy of the chain
-    assert query("SELECT uid, chain FROM inspections ORDER BY id") == [(r["uid"], r["chain"]) for r in history.read_history(out)]
+    assert query("SELECT uid, chain FROM inspections ORDER BY id") == [(r["uid"], r["chain"]) for r in history_store.read_history(out)]
     assert history.verify_history(out).ok
     assert query("SELECT COUNT(DISTINCT uid), COUNT(*) FROM defects d JOIN inspections i ON i.id = d.inspection_id") == \
         [(10, 10)]

@@ -24,7 +24,7 @@ def small():
 @pytest.fixture(scope="module")
 def vignetted(tmp_path_factory):
     """The small capture with the background at 60 % in the corners (cos^4), with its empty field."""
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, simulate
 
     cap = simulate(build_params(SimParams, {**SMALL, "vignetting": 0.6, "background_frames": 4}, "test"), 0)
@@ -88,7 +88,7 @@ def _edge_shift_px(sil, ref) -> float:
 
 
 def test_flat_field_and_the_background_model_remove_the_size_bias_of_vignetting(vignetted, small):
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     cap = read_capture(vignetted)
     ref = _segment(small).silhouettes
@@ -193,7 +193,7 @@ def test_dust_on_the_edges_puts_no_point_far_off_and_no_false_defect(tmp_path):
     off the nominal cube; with their contour points dropped, none is 0.4 mm off and the
     cube passes with no defect."""
     from inspector.testing import SMALL_RECIPE, run_recipe
-    from inspector_drivers.replay.folder import save_capture
+    from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, simulate
 
     cap = simulate(build_params(SimParams, {**SMALL, "dust": 100, "dust_depth": 0.9}, "test"), 0)

@@ -14,7 +14,7 @@ from inspector.reference import Reference
 
 @pytest.fixture(scope="module")
 def small(small_capture):
-    from inspector_drivers.replay.folder import read_capture
+    from inspector.capture_folder import read_capture
 
     return read_capture(small_capture)
 

@@ -1,4 +1,4 @@
-"""Capture folders (CONTRACT): inspector_drivers.replay.folder."""
+"""Capture folders (CONTRACT): inspector.capture_folder."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import trimesh
 
 from inspector.errors import CaptureError
 from inspector.model import Camera, Rig
-from inspector_drivers.replay.folder import (
+from inspector.capture_folder import (
     is_capture_folder,
     read_capture,
     read_rig,

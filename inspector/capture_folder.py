@@ -58,7 +58,7 @@ import os
 import re
 import struct
 import zlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
 from pathlib import Path
@@ -70,7 +70,8 @@ from inspector.errors import CaptureError
 from inspector.kernels.camera import is_rotation
 from inspector.limits import check_memory, image_file_bytes, limit, load_json, read_bounded
 from inspector.model import Camera, Capture, Rig, Truth
-from inspector.names import printable, text_problem
+from inspector.names import check_name, folder_name, name_problem, printable, text_problem
+from inspector.registry import Acquisition
 
 if TYPE_CHECKING:  # pragma: no cover
     import trimesh
@@ -791,3 +792,38 @@ def save_capture(capture: Capture, folder: str | os.PathLike, *, overwrite: bool
         truth_info=truth_info,
         overwrite=overwrite,
     )
+
+
+# --------------------------------------------------------------------------- folders as acquisitions
+
+
+def expand(paths: tuple[str, ...] | list[str]) -> list[Path]:
+    """Capture folders named by ``paths`` (folders of captures are expanded, sorted)."""
+    out: list[Path] = []
+    for raw in paths:
+        p = Path(raw)
+        if p.is_dir() and not is_capture_folder(p):
+            subs = sorted(q for q in p.iterdir() if q.is_dir() and is_capture_folder(q))
+            if subs:
+                out.extend(subs)
+                continue
+        out.append(p)
+    return out
+
+
+def named_acquisition(folder: Path, read: Callable[[Path], Capture]) -> Acquisition:
+    """The acquisition of capture folder ``folder``, named once for every driver that reads
+    folders (replay, hotfolder): after the folder, or refused when that name cannot name a
+    result folder. A refused one keeps a printable name (control characters escaped, so
+    never a valid one: no result folder is written for it) and fails to load with the reason.
+    """
+    name = folder_name(folder)
+    if name_problem(name) is None:
+        return Acquisition(name, lambda: read(folder))
+    shown = printable(name or str(folder))
+
+    def refuse() -> Capture:
+        check_name(name)
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    return Acquisition(shown, refuse)
