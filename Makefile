@@ -21,9 +21,10 @@ demo: $(STAMP)
 	$(VENV)/bin/inspector demo --out out/demo
 
 # Two workers on this project's 2-core machine (at most 4 elsewhere), whole files per worker so
-# that module fixtures (clusters, servers, captures) are made once.
+# that module fixtures (clusters, servers, captures) are made once. A worker that dies ends the
+# run at once, named (a replaced worker left pytest-xdist waiting until CI's time ran out).
 test: $(STAMP)
-	$(VENV)/bin/pytest -q -n auto --maxprocesses=4 --dist loadfile
+	$(VENV)/bin/pytest -q -n auto --maxprocesses=4 --dist loadfile --max-worker-restart=0
 
 # The manual (mkdocs.yml): docs/ and the README as its home page, into out/site/; warnings are errors.
 docs: $(STAMP)

@@ -138,6 +138,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"inspector: error: gui: {e}", file=sys.stderr)
         return 2
     demo = args.recipe is None
+    from inspector.gui.collector import GuiThreadCollector
+
+    collector = GuiThreadCollector(app)  # Qt objects in cycles are freed on this thread, never a worker's
     window = MainWindow(Path(args.recipe) if args.recipe else DEMO_RECIPE, Path(args.out or "out/gui"),
                         capture=args.capture, watch=args.watch, reference=args.reference,
                         idle_logout_s=args.idle_logout, kiosk=kiosk, shifts=shifts)
@@ -146,4 +149,7 @@ def run(args: argparse.Namespace) -> int:
     freeze_startup_objects(window)
     if demo:  # a newcomer sees a part inspected at once
         window.inspect()
-    return 0 if app.exec() == 0 else 3
+    try:
+        return 0 if app.exec() == 0 else 3
+    finally:
+        collector.uninstall()

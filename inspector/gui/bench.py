@@ -449,6 +449,7 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
     try:
         from PySide6.QtWidgets import QApplication
 
+        from inspector.gui.collector import GuiThreadCollector
         from inspector.gui.window import MainWindow, freeze_startup_objects
     except ImportError as e:
         print(f"inspector: error: bench --gui: {e.name or e} is not installed (make setup installs the GUI packages)",
@@ -483,6 +484,7 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
             return 3
 
         app = QApplication.instance() or QApplication([sys.argv[0]])
+        collector = GuiThreadCollector(app)  # as `inspector gui` runs: garbage collected on this thread only
         window = MainWindow(Path(recipe), work / "gui", capture=folder, reference=reference,
                             config_dir=work / "config")
         harness = None
@@ -531,6 +533,8 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
                 app.processEvents()
             window.deleteLater()
             app.processEvents()
+            collector.uninstall()
+            collector.deleteLater()
             gc.unfreeze()  # the process as it was (a test suite's leak checks see every object again)
 
     doc = _document(args, machine, recipe, reference, folder, source, headless, records, samples, draw,

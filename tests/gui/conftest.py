@@ -38,11 +38,45 @@ def _live_interactors() -> list:
     return live
 
 
+def _uses_qt(request) -> bool:
+    return "gui" in request.keywords and ("qapp" in request.fixturenames or "qtbot" in request.fixturenames)
+
+
 @pytest.fixture(autouse=True)
-def no_leaked_windows(request):
+def gui_thread_collector(request):
+    """As ``inspector gui`` runs: Python's garbage collector on the GUI thread only (a window
+    left in a reference cycle, collected by a session's worker thread, aborts the process)."""
+    if not _uses_qt(request):
+        yield None
+        return
+    from PySide6.QtWidgets import QApplication
+
+    from inspector.gui.collector import GuiThreadCollector
+
+    request.getfixturevalue("qapp")
+    collector = GuiThreadCollector(QApplication.instance())
+    yield collector
+    collector.uninstall()
+    collector.deleteLater()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    """After a GUI test has let go of its fixtures (``item.funcargs``, cleared after the last
+    teardown): what it left in cycles collected here, on the GUI thread, not by the next
+    test's worker thread."""
+    try:
+        return (yield)
+    finally:
+        if "gui" in item.keywords:
+            gc.collect()
+
+
+@pytest.fixture(autouse=True)
+def no_leaked_windows(request, gui_thread_collector):
     """After a GUI test: no open top-level window and no plotter left unclosed."""
     yield
-    if "gui" not in request.keywords or "qapp" not in request.fixturenames and "qtbot" not in request.fixturenames:
+    if not _uses_qt(request):
         return
     from PySide6.QtWidgets import QApplication
 
