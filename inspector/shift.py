@@ -5,7 +5,7 @@ many passed, failed and could not be judged, the yield, where the parts fail mos
 defects' regions) and why inspections ended in an error (their reasons, grouped). This
 module reads them from ``OUTDIR/history.sqlite`` (the ``history`` plugin's file, opened
 read-only: ``sqlite3`` with a ``mode=ro`` URI, so a reader never locks out the runner) for
-the shift times of the cell's settings::
+the shift times of the cell's settings (:mod:`inspector.cell`)::
 
     [shifts]                                   # in the cell's settings file (cell.toml)
     starts = ["06:00", "14:00", "22:00"]       # local times, ascending; each shift ends where the next begins
@@ -30,7 +30,6 @@ import math
 import re
 import sqlite3
 import sys
-import tomllib
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -38,22 +37,18 @@ from datetime import datetime, time, timedelta, timezone, tzinfo
 from pathlib import Path
 from typing import Any
 
+from inspector.cell import cell_file, load_cell
 from inspector.errors import InputError, RecipeError
 from inspector.params import build_params, param
 
-__all__ = ["ShiftSettings", "Shift", "RegionCount", "ErrorGroup", "ShiftCounters", "HISTORY_FILE", "CELL_TABLES",
-           "load_cell", "cell_file", "shift_settings", "shift_at", "shifts_until", "read_shift_rows", "count", "shift_counters", "error_key",
+__all__ = ["ShiftSettings", "Shift", "RegionCount", "ErrorGroup", "ShiftCounters", "HISTORY_FILE",
+           "shift_settings", "shift_at", "shifts_until", "read_shift_rows", "count", "shift_counters", "error_key",
            "format_shift", "format_shifts", "print_shifts", "translate", "set_translator"]
 
 #: The history database in a run's OUTDIR (the ``history`` plugin's :data:`HISTORY_FILE`; the
 #: name is repeated here so that the core does not import a plugin).
 HISTORY_FILE = "history.sqlite"
 
-#: Tables a cell's settings file may hold: ``[shifts]`` (here), ``[gui]`` (the operator
-#: window) and ``[server]`` (``inspector serve``'s).
-CELL_TABLES = ("shifts", "gui", "server")
-
-_MAX_CELL_BYTES = 1 << 20
 _HHMM = re.compile(r"^([01]\d|2[0-3]):([0-5]\d)$")
 
 # -- translation hook ---------------------------------------------------------------------------
@@ -193,44 +188,6 @@ class ShiftCounters:
 
 
 # -- settings -----------------------------------------------------------------------------------
-def load_cell(path: str | Path | None) -> dict[str, dict[str, Any]]:
-    """The tables of the cell's settings file ``path`` ({} without a file): only
-    :data:`CELL_TABLES` are allowed. RecipeError in one line naming the file otherwise."""
-    if path is None:
-        return {}
-    p = Path(path)
-    try:
-        if p.stat().st_size > _MAX_CELL_BYTES:
-            raise RecipeError(f"{p}: larger than {_MAX_CELL_BYTES} bytes: not a cell settings file")
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise RecipeError(f"{p}: file not found") from None
-    except OSError as e:
-        raise RecipeError(f"{p}: cannot be read ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise RecipeError(f"{p}: not a UTF-8 text file") from None
-    except tomllib.TOMLDecodeError as e:
-        raise RecipeError(f"{p}: not valid TOML ({e})") from None
-    for key, value in data.items():
-        if key not in CELL_TABLES:
-            raise RecipeError(f"{p}: unknown table {key!r} (expected {', '.join(CELL_TABLES)})")
-        if not isinstance(value, dict):
-            raise RecipeError(f"{p}: {key}: expected a table")
-    return data
-
-
-def cell_file(given: str | Path | None) -> Path | None:
-    """The cell's settings file: ``given`` (``--config``), else ``cell.toml`` of the
-    configuration folder (``$INSPECTOR_CONFIG_DIR``, else ``~/.config/inspector``, where
-    ``roles.json`` lives) when it exists, else None."""
-    if given:
-        return Path(given)
-    from inspector.roles import config_dir
-
-    default = config_dir() / "cell.toml"
-    return default if default.is_file() else None
-
-
 def shift_settings(path: str | Path | None) -> ShiftSettings:
     """The ``[shifts]`` of the cell's settings file (defaults without a file or table)."""
     table = load_cell(path).get("shifts")
@@ -420,7 +377,7 @@ def format_shifts(counters: Sequence[ShiftCounters], *, top: int = 5) -> str:
 def print_shifts(outdir: str | Path, *, shifts: int = 1, config: str | Path | None = None) -> int:
     """``inspector history OUTDIR --shift [N] [--config cell.toml]``: print the counters of the
     current shift and the ``N - 1`` before it, with the shift times of ``config`` (else the
-    configuration folder's ``cell.toml``, see :func:`cell_file`; else the defaults); the exit
+    configuration folder's ``cell.toml``, see :func:`inspector.cell.cell_file`; else the defaults); the exit
     status (2: bad settings, 3: no readable history), the reason in one line on stderr."""
     if shifts < 1:
         print(f"inspector: error: --shift: expected a number >= 1, got {shifts}", file=sys.stderr)

@@ -32,12 +32,12 @@ import hashlib
 import hmac
 import os
 import secrets
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 from urllib.parse import urlsplit
 
+from inspector.cell import load_cell
 from inspector.errors import RecipeError
 from inspector.params import build_params, param
 
@@ -56,7 +56,6 @@ TRUSTED = "trusted"
 
 _HASH = "pbkdf2_sha256"
 _ITERATIONS = 200_000
-_MAX_CONFIG_BYTES = 1 << 20
 
 
 @dataclass(frozen=True)
@@ -91,27 +90,8 @@ def load_settings(path: str | os.PathLike[str] | None) -> ServerSettings:
     if path is None:
         return ServerSettings()
     p = Path(path)
-    label = p.name
-    try:
-        if p.stat().st_size > _MAX_CONFIG_BYTES:
-            raise RecipeError(f"{p}: larger than {_MAX_CONFIG_BYTES} bytes: not a server configuration")
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise RecipeError(f"--config {p}: file not found") from None
-    except OSError as e:
-        raise RecipeError(f"--config {p}: cannot be read ({e.strerror or e})") from None
-    except UnicodeDecodeError:
-        raise RecipeError(f"{label}: not a UTF-8 text file") from None
-    except tomllib.TOMLDecodeError as e:
-        raise RecipeError(f"{label}: not valid TOML ({e})") from None
-    # One cell.toml holds the server's, the GUI's and the shifts' settings; each reader checks its own table.
-    extra = sorted(set(data) - {"server", "gui", "shifts"})
-    if extra:
-        raise RecipeError(f"{label}: unknown table {extra[0]!r} (expected server, gui or shifts)")
-    table = data.get("server", {})
-    if not isinstance(table, dict):
-        raise RecipeError(f"{label}: server: expected a table")
-    settings: ServerSettings = build_params(ServerSettings, table, f"{label}: server", p.resolve().parent)
+    table = load_cell(p).get("server", {})  # the file checked whole; [gui] and [shifts] are others'
+    settings: ServerSettings = build_params(ServerSettings, table, f"{p.name}: server", p.resolve().parent)
     return settings
 
 

@@ -28,12 +28,13 @@ from typing import TYPE_CHECKING
 
 from inspector.params import param
 from inspector.resources import recipe_path
-from inspector.shift import ShiftSettings, cell_file
+from inspector.cell import cell_file
+from inspector.shift import ShiftSettings
 
 if TYPE_CHECKING:
     from inspector.gui.window import MainWindow
 
-__all__ = ["add_parser", "run", "DEMO_RECIPE", "GuiSettings", "cell_file", "load_gui_settings"]
+__all__ = ["add_parser", "run", "DEMO_RECIPE", "GuiSettings", "load_gui_settings"]
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,7 @@ def load_gui_settings(path: Path | None) -> tuple[GuiSettings, ShiftSettings]:
 
     Raises RecipeError in one line naming the file and the key."""
     from inspector.params import build_params
-    from inspector.shift import load_cell
+    from inspector.cell import load_cell
 
     tables = load_cell(path)
     name = path.name if path is not None else "cell"
