@@ -65,36 +65,10 @@ def _with_depth(inside: np.ndarray, out: np.ndarray) -> None:
       px outside, so the clamped map is ``max(signed distance, -m)``: still Lipschitz,
       and every violation within ``m`` px (all that any tolerance uses) is unchanged.
     """
-    import cv2
-
     H, W = inside.shape
-    known = inside > -1e5
-    krows = np.flatnonzero(known.any(axis=1))
-    kcols = np.flatnonzero(known.any(axis=0))
-    if krows.size == 0:
-        out[...] = inside
-        return
-    ky0, ky1, kx0, kx1 = krows[0], krows[-1] + 1, kcols[0], kcols[-1] + 1
-    crop = inside[ky0:ky1, kx0:kx1]
-    mask = crop >= 0.0
-    if not mask.any():
-        out[...] = inside
-        return
-    rows = np.flatnonzero(mask.any(axis=1))
-    cols = np.flatnonzero(mask.any(axis=0))
-    y0, y1, x0, x1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
-    hk, wk = crop.shape
-    sides = [y0 if ky0 > 0 else np.inf, hk - y1 if ky1 < H else np.inf, x0 if kx0 > 0 else np.inf, wk - x1 if kx1 < W else np.inf]
-    m = min(CLAMP_PX, float(min(sides)))
-    out.fill(-m)
-    sub = np.maximum(crop, -m)
-    mm = mask[y0:y1, x0:x1]
-    # distance to the nearest background pixel; the crop's edge counts as background
-    d = cv2.distanceTransform(np.pad(mm, 1).astype(np.uint8), cv2.DIST_L2, 5)[1:-1, 1:-1]
-    deep = mm & (d > 2.0)
-    inner = sub[y0:y1, x0:x1]
-    inner[deep] = d[deep] - 1.5
-    out[ky0:ky1, kx0:kx1] = sub
+    box = _known_box(inside)
+    if box is None or _with_depth_box(inside, box, (0, H, 0, W), out) is None:
+        out[...] = inside  # nothing computed, or no inside pixel: the map as it is
 
 
 def _known_box(inside: np.ndarray) -> tuple[int, int, int, int] | None:
