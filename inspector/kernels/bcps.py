@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from inspector.kernels.ray_search import ray_min_search
 from inspector.kernels.silhouette import sample_bilinear
 from inspector.model import Camera
 
@@ -224,10 +225,6 @@ def ray_ranges(
     return t0 - radius_mm, t1 + radius_mm
 
 
-#: How many of the coarse samples along a ray are looked at more closely.
-_RAY_SEEDS = 3
-
-
 def ray_min_distance(
     origin: np.ndarray,
     dirs: np.ndarray,
@@ -258,7 +255,7 @@ def ray_min_distance(
     sd_fn : callable
         ``(N, 3) world mm -> (N,)`` signed distance, mm (negative inside).
     step_mm : float
-        The range is sampled every 4 steps, then every step about the ``_RAY_SEEDS`` lowest
+        The range is sampled every 4 steps, then every step about the ``RAY_SEEDS`` lowest
         samples (2 steps either side), and the lowest of those is refined ``levels`` times on
         9 samples about it, each level 4 times finer (0.25 mm and 3 levels: 4 um).
     levels : int
@@ -268,59 +265,7 @@ def ray_min_distance(
     (M,) float
         mm; NaN for a ray without range.
     """
-    d = np.asarray(dirs, float).reshape(-1, 3)
-    a = np.asarray(t0, float).reshape(-1)
-    b = np.asarray(t1, float).reshape(-1)
-    if not (len(a) == len(b) == len(d)):
-        raise ValueError(f"dirs, t0 and t1 must have one row per ray, got {len(d)}, {len(a)}, {len(b)}")
-    if not step_mm > 0:
-        raise ValueError(f"step_mm must be positive, got {step_mm!r}")
-    out = np.full(len(d), np.nan)
-    ok = np.flatnonzero(a <= b)
-    if not len(ok):
-        return out
-    o = np.asarray(origin, float).reshape(3)
-    d, a, b = d[ok], a[ok], b[ok]
-    rows = np.arange(len(ok))
-
-    def sample(r: np.ndarray, tt: np.ndarray) -> np.ndarray:
-        """Signed distance at ``tt`` along rays ``r`` (same shape); inf where NaN (beyond an
-        index's band: far from the surface)."""
-        flat = tt.reshape(-1)
-        sd = np.asarray(sd_fn(o + flat[:, None] * d[np.asarray(r).reshape(-1)]), float).reshape(tt.shape)
-        return np.where(np.isnan(sd), np.inf, sd)
-
-    # 1. Every 4 steps along the whole range (ragged: only the samples inside it).
-    big = 4.0 * step_mm
-    n = int(np.ceil(float(np.max(b - a)) / big)) + 1
-    tt = a[:, None] + big * np.arange(n)[None, :]
-    inside = tt <= b[:, None] + 1e-12
-    sd = np.full(tt.shape, np.inf)
-    r_in = np.broadcast_to(rows[:, None], tt.shape)[inside]
-    sd[inside] = sample(r_in, tt[inside])
-    # 2. Every step about the few lowest of those (the minimum lies near them: the distance
-    # changes by at most the distance moved, and grazing rays dip smoothly or at an edge).
-    k = min(_RAY_SEEDS, n)
-    seeds = np.argpartition(sd, k - 1, axis=1)[:, :k] if n > k else np.broadcast_to(np.arange(n), (len(ok), n))
-    ts = np.take_along_axis(tt, seeds, axis=1)[:, :, None] + step_mm * np.arange(-2, 3)[None, None, :]
-    ts = np.clip(ts, a[:, None, None], b[:, None, None]).reshape(len(ok), -1)
-    sd = np.where(np.isfinite(np.take_along_axis(sd, seeds, axis=1)).repeat(5, axis=1),
-                  sample(np.broadcast_to(rows[:, None], ts.shape), ts), np.inf)
-    kbest = np.argmin(sd, axis=1)
-    tb, sb = ts[rows, kbest], sd[rows, kbest]
-    # 3. Refine about the best, each level 4 times finer.
-    h = step_mm
-    offsets = np.arange(-4, 5, dtype=float)
-    for _ in range(int(levels)):
-        h /= 4.0
-        tt = tb[:, None] + h * offsets[None, :]
-        sd = sample(np.broadcast_to(rows[:, None], tt.shape), tt)
-        kbest = np.argmin(sd, axis=1)
-        better = sd[rows, kbest] < sb
-        tb = np.where(better, tt[rows, kbest], tb)
-        sb = np.where(better, sd[rows, kbest], sb)
-    out[ok] = np.where(np.isfinite(sb), sb, np.nan)
-    return out
+    return ray_min_search(np.asarray(origin, float).reshape(3), dirs, t0, t1, sd_fn, step_mm=step_mm, levels=levels)
 
 
 def _refine(origin, d, tbest, vbest, sbest, hull, sd_fn, step_mm, levels, offsets, half, lip, accept_px, tol, weight):

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from inspector.kernels.bcps import _RAY_SEEDS
+from inspector.kernels.ray_search import ray_min_search
 
 __all__ = ["CameraRays", "SilhouetteHealth", "silhouette_residuals", "ray_min_distances", "image_shift",
            "flagged_cameras"]
@@ -188,63 +188,13 @@ def ray_min_distances(
 ) -> np.ndarray:
     """:func:`~inspector.kernels.bcps.ray_min_distance` for rays of many cameras at once: one
     origin per ray (M, 3); the same search (every 4 steps, then every step about the
-    ``_RAY_SEEDS`` lowest samples, then ``levels`` refinements 4 times finer each) and the
+    ``RAY_SEEDS`` lowest samples, then ``levels`` refinements 4 times finer each) and the
     same result, ray for ray (mm; NaN for a ray without range)."""
     O = np.asarray(origins, float).reshape(-1, 3)
-    d = np.asarray(dirs, float).reshape(-1, 3)
-    a = np.asarray(t0, float).reshape(-1)
-    b = np.asarray(t1, float).reshape(-1)
-    if not (len(O) == len(d) == len(a) == len(b)):
-        raise ValueError(f"origins, dirs, t0 and t1 must have one row per ray, got {len(O)}, {len(d)}, {len(a)}, {len(b)}")
-    if not step_mm > 0:
-        raise ValueError(f"step_mm must be positive, got {step_mm!r}")
-    out = np.full(len(d), np.nan)
-    ok = np.flatnonzero(a <= b)
-    if not len(ok):
-        return out
-    O, d, a, b = O[ok], d[ok], a[ok], b[ok]
-    rows = np.arange(len(ok))
-
-    def sample(tt: np.ndarray) -> np.ndarray:
-        """Signed distance at ``tt`` (rays, samples) along every ray; inf where NaN."""
-        X = O[:, None, :] + tt[..., None] * d[:, None, :]
-        sd = np.asarray(sd_fn(X.reshape(-1, 3)), float).reshape(tt.shape)
-        return np.where(np.isnan(sd), np.inf, sd)
-
-    def sample_at(r: np.ndarray, tt: np.ndarray) -> np.ndarray:
-        """Signed distance at ``tt`` (N,) along rays ``r`` (N,); inf where NaN."""
-        sd = np.asarray(sd_fn(O[r] + tt[:, None] * d[r]), float)
-        return np.where(np.isnan(sd), np.inf, sd)
-
-    # 1. Every 4 steps along the whole range (ragged: only the samples inside it).
-    big = 4.0 * step_mm
-    n = int(np.ceil(float(np.max(b - a)) / big)) + 1
-    tt = a[:, None] + big * np.arange(n)[None, :]
-    inside = tt <= b[:, None] + 1e-12
-    sd = np.full(tt.shape, np.inf)
-    r_in = np.broadcast_to(rows[:, None], tt.shape)[inside]
-    sd[inside] = sample_at(r_in, tt[inside])
-    # 2. Every step about the few lowest of those.
-    k = min(_RAY_SEEDS, n)
-    seeds = np.argpartition(sd, k - 1, axis=1)[:, :k] if n > k else np.broadcast_to(np.arange(n), (len(ok), n))
-    ts = np.take_along_axis(tt, seeds, axis=1)[:, :, None] + step_mm * np.arange(-2, 3)[None, None, :]
-    ts = np.clip(ts, a[:, None, None], b[:, None, None]).reshape(len(ok), -1)
-    sd = np.where(np.isfinite(np.take_along_axis(sd, seeds, axis=1)).repeat(5, axis=1), sample(ts), np.inf)
-    kbest = np.argmin(sd, axis=1)
-    tb, sb = ts[rows, kbest], sd[rows, kbest]
-    # 3. Refine about the best, each level 4 times finer.
-    h = step_mm
-    offsets = np.arange(-4, 5, dtype=float)
-    for _ in range(int(levels)):
-        h /= 4.0
-        tt = tb[:, None] + h * offsets[None, :]
-        sd = sample(tt)
-        kbest = np.argmin(sd, axis=1)
-        better = sd[rows, kbest] < sb
-        tb = np.where(better, tt[rows, kbest], tb)
-        sb = np.where(better, sd[rows, kbest], sb)
-    out[ok] = np.where(np.isfinite(sb), sb, np.nan)
-    return out
+    if len(O) != len(np.asarray(dirs, float).reshape(-1, 3)):
+        raise ValueError(f"origins, dirs, t0 and t1 must have one row per ray, got {len(O)}, "
+                         f"{len(np.asarray(dirs).reshape(-1, 3))}, {len(np.ravel(t0))}, {len(np.ravel(t1))}")
+    return ray_min_search(O, dirs, t0, t1, sd_fn, step_mm=step_mm, levels=levels)
 
 
 def flagged_cameras(figure_px: np.ndarray, rays: np.ndarray, threshold_px: float, min_rays: int = MIN_RAYS) -> np.ndarray:

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from inspector.kernels import camera as camk
+from inspector.kernels.ray_search import sampler, seed_minimum
 
 __all__ = [
     "Grazes",
@@ -57,10 +58,6 @@ Normal = Callable[[np.ndarray], np.ndarray]
 
 #: The intrinsic parameters :func:`direction_derivatives` differentiates, in its column order.
 INTRINSICS = ("fx", "fy", "cx", "cy")
-
-#: How many of the coarse samples along a ray are looked at more closely.
-_SEEDS = 3
-
 
 def rotation_matrix(w: np.ndarray) -> np.ndarray:
     """Rotation vector (3,) (axis times angle, rad) -> rotation matrix (3, 3) (Rodrigues)."""
@@ -168,28 +165,7 @@ def ray_argmin_distance(
     if not len(ok):
         return r_out, t_out
     o, d, a, b = o[ok], d[ok], a[ok], b[ok]
-    rows = np.arange(len(ok))
-
-    def sample(r: np.ndarray, tt: np.ndarray) -> np.ndarray:
-        flat = tt.reshape(-1)
-        rr = np.asarray(r).reshape(-1)
-        sd = np.asarray(sd_fn(o[rr] + flat[:, None] * d[rr]), float).reshape(tt.shape)
-        return np.where(np.isnan(sd), np.inf, sd)
-
-    big = 4.0 * step_mm
-    n = int(np.ceil(float(np.max(b - a)) / big)) + 1
-    tt = a[:, None] + big * np.arange(n)[None, :]
-    inside = tt <= b[:, None] + 1e-12
-    sd = np.full(tt.shape, np.inf)
-    sd[inside] = sample(np.broadcast_to(rows[:, None], tt.shape)[inside], tt[inside])
-    k = min(_SEEDS, n)
-    seeds = np.argpartition(sd, k - 1, axis=1)[:, :k] if n > k else np.broadcast_to(np.arange(n), (len(ok), n))
-    ts = np.take_along_axis(tt, seeds, axis=1)[:, :, None] + step_mm * np.arange(-2, 3)[None, None, :]
-    ts = np.clip(ts, a[:, None, None], b[:, None, None]).reshape(len(ok), -1)
-    sd = np.where(np.isfinite(np.take_along_axis(sd, seeds, axis=1)).repeat(5, axis=1),
-                  sample(np.broadcast_to(rows[:, None], ts.shape), ts), np.inf)
-    kbest = np.argmin(sd, axis=1)
-    tb, sb = ts[rows, kbest], sd[rows, kbest]
+    tb, sb = seed_minimum(a, b, sampler(o, d, sd_fn), step_mm)
     t, s = _golden(o, d, np.maximum(tb - step_mm, a), np.minimum(tb + step_mm, b), sd_fn, tol)
     better = s < sb
     tb = np.where(better, t, tb)
