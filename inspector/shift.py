@@ -2,8 +2,9 @@
 
 A shift leader asks for the shift's parts, not the last fifty: how many were inspected, how
 many passed, failed and could not be judged, the yield, where the parts fail most (the
-defects' regions) and why inspections ended in an error (their reasons, grouped). This
-module reads them from ``OUTDIR/history.sqlite`` (the ``history`` plugin's file, opened
+defects' regions), which measured characteristics are worst (NOK, not measurable, most of
+the tolerance used) and why inspections ended in an error (their reasons, grouped). This
+module reads them from ``OUTDIR/history.sqlite`` (the history store's file, opened
 read-only: ``sqlite3`` with a ``mode=ro`` URI, so a reader never locks out the runner) for
 the shift times of the cell's settings (:mod:`inspector.cell`)::
 
@@ -26,6 +27,7 @@ the GUI shows the current shift's counters.
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import sqlite3
@@ -41,9 +43,9 @@ from inspector.cell import cell_file, load_cell
 from inspector.errors import InputError, RecipeError
 from inspector.params import build_params, param
 
-__all__ = ["ShiftSettings", "Shift", "RegionCount", "ErrorGroup", "ShiftCounters", "HISTORY_FILE",
+__all__ = ["ShiftSettings", "Shift", "RegionCount", "ErrorGroup", "CharacteristicCount", "ShiftCounters", "HISTORY_FILE",
            "shift_settings", "shift_at", "shifts_until", "read_shift_rows", "count", "shift_counters", "error_key",
-           "format_shift", "format_shifts", "print_shifts", "translate", "set_translator"]
+           "count_characteristics", "format_shift", "format_shifts", "print_shifts", "translate", "set_translator"]
 
 #: The history database in a run's OUTDIR (the ``history`` plugin's :data:`HISTORY_FILE`; the
 #: name is repeated here so that the core does not import a plugin).
@@ -140,6 +142,33 @@ class RegionCount:
 
 
 @dataclass(frozen=True)
+class CharacteristicCount:
+    """One measured characteristic over a shift (the ``[[characteristics]]`` rows of the
+    inspections' ``extras``, issue 28).
+
+    Attributes
+    ----------
+    id : str
+    parts : int
+        Inspections that report it.
+    nok : int
+        Of those, measured out of its limits.
+    not_measurable : int
+        Of those, not measurable (too few points on its features).
+    worst_use : float or None
+        The largest share of the tolerance used, over the parts measured: ``|deviation -
+        middle| / half width`` of the limits (1.0 at a limit, above 1 outside); None when none
+        was measured.
+    """
+
+    id: str
+    parts: int
+    nok: int
+    not_measurable: int
+    worst_use: float | None
+
+
+@dataclass(frozen=True)
 class ErrorGroup:
     """Errors of one kind: their reason with the numbers and quoted names left out
     (:func:`error_key`), how many, and the latest full text."""
@@ -163,6 +192,8 @@ class ShiftCounters:
         Worst first: most parts, then largest deviation.
     error_groups : tuple of ErrorGroup
         Most frequent first.
+    characteristics : tuple of CharacteristicCount
+        Worst first: most NOK, then most not measurable, then most of the tolerance used.
     """
 
     shift: Shift
@@ -172,6 +203,7 @@ class ShiftCounters:
     errors: int = 0
     regions: tuple[RegionCount, ...] = ()
     error_groups: tuple[ErrorGroup, ...] = field(default_factory=tuple)
+    characteristics: tuple[CharacteristicCount, ...] = ()
 
     @property
     def inspected(self) -> int:
@@ -234,7 +266,7 @@ def _parse_utc(text: str) -> datetime | None:
 def read_shift_rows(path: Path, start: datetime, end: datetime
                     ) -> tuple[list[dict[str, Any]], dict[int, list[dict[str, Any]]]]:
     """The inspections of the history file ``path`` inspected in ``[start, end)`` (oldest
-    first: ``id``, ``inspected_at``, ``verdict``, ``error``) and their defects by inspection
+    first: ``id``, ``inspected_at``, ``verdict``, ``error``, ``extras``) and their defects by inspection
     id (``kind``, ``worst_mm``, ``region``). Read-only. InputError naming the file when there is
     none or it cannot be read."""
     path = Path(path)
@@ -252,7 +284,9 @@ def read_shift_rows(path: Path, start: datetime, end: datetime
             if "inspections" not in tables:
                 return [], {}
             rows = []
-            for r in con.execute("SELECT id, inspected_at, verdict, error FROM inspections "
+            have = {r[1] for r in con.execute("PRAGMA table_info(inspections)")}
+            extras = "extras" if "extras" in have else "NULL AS extras"  # a file from before the column
+            for r in con.execute(f"SELECT id, inspected_at, verdict, error, {extras} FROM inspections "
                                  "WHERE inspected_at >= ? AND inspected_at < ? ORDER BY id", (lo, hi)):
                 t = _parse_utc(r["inspected_at"])
                 if t is not None and start <= t < end:
@@ -312,7 +346,47 @@ def count(shift: Shift, rows: Sequence[Mapping[str, Any]], defects: Mapping[int,
             g[1] = str(r.get("error") or "")  # the latest (rows are oldest first)
     error_rows = sorted((ErrorGroup(k, v[0], v[1]) for k, v in groups.items()), key=lambda g: (-g.count, g.reason))
     return ShiftCounters(shift, tuple(int(r["id"]) for r in rows), verdicts["pass"], verdicts["fail"],
-                         verdicts["error"], tuple(region_rows), tuple(error_rows))
+                         verdicts["error"], tuple(region_rows), tuple(error_rows), count_characteristics(rows))
+
+
+def _tolerance_use(row: Mapping[str, Any]) -> float | None:
+    """``|deviation - middle| / half width`` of a characteristics row's limits (None: not
+    measured, or limits without a width); the deviation is ``measured - nominal`` in a row
+    that does not carry it."""
+    try:
+        dev = row.get("deviation")
+        dev = float(dev) if dev is not None else float(row["measured"]) - float(row.get("nominal") or 0.0)
+        lo, hi = float(row["lower"]), float(row["upper"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    half = (hi - lo) / 2.0
+    if not (math.isfinite(dev) and math.isfinite(half)) or half <= 0:
+        return None
+    return abs(dev - (hi + lo) / 2.0) / half
+
+
+def count_characteristics(rows: Sequence[Mapping[str, Any]]) -> tuple[CharacteristicCount, ...]:
+    """The characteristics counters of history rows (their ``extras`` column, JSON), worst
+    first (:class:`ShiftCounters`)."""
+    from inspector.characteristics.definitions import rows_of
+
+    found: dict[str, list[Any]] = {}
+    for r in rows:
+        raw = r.get("extras")
+        try:
+            extras = json.loads(raw) if isinstance(raw, str) else raw
+        except ValueError:
+            continue  # a row a foreign writer garbled: its characteristics are not counted
+        for c in rows_of({"extras": extras if isinstance(extras, Mapping) else {}}):
+            entry = found.setdefault(str(c.get("id")), [0, 0, 0, None])
+            entry[0] += 1
+            entry[1] += c.get("verdict") == "nok"
+            entry[2] += c.get("verdict") == "not_measurable"
+            use = _tolerance_use(c)
+            if use is not None and (entry[3] is None or use > entry[3]):
+                entry[3] = use
+    out = (CharacteristicCount(k, *v) for k, v in found.items())
+    return tuple(sorted(out, key=lambda c: (-c.nok, -c.not_measurable, -(c.worst_use or 0.0), c.id)))
 
 
 def shift_counters(history: str | Path, settings: ShiftSettings | None = None, *, now: datetime | None = None,
@@ -362,6 +436,10 @@ def format_shift(c: ShiftCounters, *, top: int = 5) -> str:
         lines.append("  " + translate("Shift", "worst regions (parts with a defect there, defects, worst mm):"))
         for g in c.regions[:top]:
             lines.append(f"    {g.region:24s} {g.parts:5d} {g.defects:5d} {g.worst_mm:+9.3f}")
+    if c.characteristics:
+        lines.append("  " + translate("Shift", "worst characteristics (parts, NOK, not measurable, most of the tolerance used):"))
+        for k in c.characteristics[:top]:
+            lines.append(f"    {k.id:24s} {k.parts:5d} {k.nok:5d} {k.not_measurable:5d} {_pct(k.worst_use):>9s}")
     if c.error_groups:
         lines.append("  " + translate("Shift", "errors by reason:"))
         for e in c.error_groups[:top]:

@@ -660,16 +660,17 @@ class ShiftPanel(QFrame):
         self.counts = QLabel()
         self.counts.setObjectName("shiftCounts")
         self.regions = QLabel()
+        self.chars = QLabel()
         self.errors = QLabel()
-        for label in (self.title, self.counts, self.regions, self.errors):
+        for label in (self.title, self.counts, self.regions, self.chars, self.errors):
             _elided(label)
-        for label in (self.counts, self.regions, self.errors):
+        for label in (self.counts, self.regions, self.chars, self.errors):
             label.setWordWrap(True)
         self.setStyleSheet("#shiftTitle { font-weight: bold; } #shiftCounts { font-weight: bold; }")
         lay = QVBoxLayout(self)
         lay.setContentsMargins(8, 2, 8, 2)
         lay.setSpacing(0)
-        for label in (self.title, self.counts, self.regions, self.errors):
+        for label in (self.title, self.counts, self.regions, self.chars, self.errors):
             lay.addWidget(label)
         lay.addStretch(1)
         self.counters: Any = None
@@ -682,6 +683,8 @@ class ShiftPanel(QFrame):
             self.title.setText(self.tr("Shift"))
             self.counts.setText(self.tr("no inspection in this shift yet"))
             self.regions.setText("")
+            self.chars.setText("")
+            self.chars.hide()
             self.errors.setText("")
             return
         s = counters.shift
@@ -700,6 +703,7 @@ class ShiftPanel(QFrame):
             self.regions.setText(self.tr("worst regions: {list}").format(list=", ".join(parts)))
         else:
             self.regions.setText(self.tr("no defect in this shift"))
+        self._show_characteristics(counters.characteristics)
         if counters.error_groups:
             groups = [f"{e.count}\u00d7 {e.reason}" for e in counters.error_groups[:self.TOP]]
             self.errors.setText(self.tr("errors: {list}").format(list="; ".join(groups)))
@@ -708,6 +712,27 @@ class ShiftPanel(QFrame):
             self.errors.setText(self.tr("no error in this shift"))
             self.errors.setToolTip("")
         self.regions.setToolTip(self.regions.text())
+
+    def _show_characteristics(self, chars: Any) -> None:
+        """The worst measured characteristics of the shift (hidden when the recipe measures
+        none): NOK and not measurable counts, else the most of the tolerance used."""
+        if not chars:
+            self.chars.setText("")
+            self.chars.hide()
+            return
+        items = []
+        for c in chars[:self.TOP]:
+            if c.nok:
+                items.append(self.tr("{id} {n}\u00d7 NOK").format(id=c.id, n=c.nok))
+            elif c.not_measurable:
+                items.append(self.tr("{id} {n}\u00d7 not measurable").format(id=c.id, n=c.not_measurable))
+            elif c.worst_use is not None:
+                items.append(self.tr("{id} at most {share} of the tolerance").format(id=c.id, share=percent(c.worst_use, 0)))
+            else:
+                items.append(c.id)
+        self.chars.setText(self.tr("worst characteristics: {list}").format(list=", ".join(items)))
+        self.chars.setToolTip(self.chars.text())
+        self.chars.show()
 
 
 class HistoryStrip(QWidget):

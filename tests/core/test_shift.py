@@ -201,3 +201,31 @@ def test_print_shifts_is_the_command_and_its_errors_are_one_line(tmp_path, capsy
     (tmp_path / "broken" / "history.sqlite").write_bytes(b"not a database" * 100)
     assert print_shifts(tmp_path / "broken") == 3
     assert "cannot be read" in capsys.readouterr().err
+
+
+def test_the_worst_characteristics_of_the_shift(tmp_path):
+    """The characteristics the inspections recorded (their extras): NOK first, then not
+    measurable, then the most of the tolerance used; in the text of `history --shift` too."""
+    from inspector.history_store import record
+    from inspector.model import InspectionResult
+
+    t0 = datetime(2026, 12, 3, 6, 0, tzinfo=UTC)
+    diameters = [36.002, 35.998, 36.060, 36.001]  # the third NOK: 0.060 of a 0.05 half width
+    for k, d in enumerate(diameters):
+        rows = [{"id": "D1", "kind": "diameter", "nominal": 36.0, "measured": d, "deviation": d - 36.0, "lower": -0.05,
+                 "upper": 0.05, "verdict": "ok" if abs(d - 36.0) <= 0.05 else "nok"},
+                {"id": "T2", "kind": "distance", "nominal": 6.0, "measured": None if k == 1 else 6.004, "lower": -0.02,
+                 "upper": 0.02, "verdict": "not_measurable" if k == 1 else "ok"}]
+        record(InspectionResult(f"p{k}", "r", "fail" if d > 36.05 else "pass", None, {}, extras={"characteristics": rows}),
+               tmp_path, now=t0 + timedelta(minutes=k))
+    record(InspectionResult("plain", "r", "pass", None, {}), tmp_path, now=t0 + timedelta(minutes=9))
+    settings = ShiftSettings(starts=("06:00",), names=("day",), timezone="UTC")
+    (c,) = shift_counters(tmp_path, settings, now=t0 + timedelta(hours=1))
+    assert c.inspected == 5
+    d1, t2 = c.characteristics
+    assert (d1.id, d1.parts, d1.nok, d1.not_measurable) == ("D1", 4, 1, 0)
+    assert d1.worst_use == pytest.approx(0.060 / 0.05)
+    assert (t2.id, t2.parts, t2.nok, t2.not_measurable) == ("T2", 4, 0, 1)
+    assert t2.worst_use == pytest.approx(0.004 / 0.02)  # no deviation in the row: measured - nominal
+    text = format_shifts([c])
+    assert "worst characteristics" in text and "D1" in text and "120.0 %" in text

@@ -54,3 +54,33 @@ def test_the_shift_panel_counts_what_the_history_has(qtbot, tmp_path, sim_captur
     assert len(read_history(out)) == 3
     check()
     w.close()
+
+
+def test_the_shift_panel_names_the_worst_characteristics(qtbot, tmp_path):
+    """A recipe that measures characteristics: the panel names the worst of the shift (NOK
+    first, then not measurable, then the most of the tolerance used), as `history --shift`."""
+    from datetime import timedelta
+
+    from inspector.gui.widgets import ShiftPanel
+    from inspector.history_store import record
+    from inspector.model import InspectionResult
+    from inspector.shift import ShiftSettings, shift_counters
+
+    t0 = datetime(2026, 12, 3, 6, 0, tzinfo=timezone.utc)
+    for k, (d, t) in enumerate([(36.002, 6.004), (36.060, None), (35.990, 6.012)]):
+        rows = [{"id": "D1", "measured": d, "nominal": 36.0, "lower": -0.05, "upper": 0.05,
+                 "verdict": "ok" if abs(d - 36.0) <= 0.05 else "nok"},
+                {"id": "T2", "measured": t, "nominal": 6.0, "lower": -0.02, "upper": 0.02,
+                 "verdict": "ok" if t is not None else "not_measurable"},
+                {"id": "F3", "measured": 0.01, "nominal": 0.0, "lower": 0.0, "upper": 0.04, "verdict": "ok"}]
+        record(InspectionResult(f"p{k}", "r", "pass", None, {}, extras={"characteristics": rows}), tmp_path,
+               now=t0 + timedelta(minutes=k))
+    (c,) = shift_counters(tmp_path, ShiftSettings(starts=("06:00",), names=("day",), timezone="UTC"),
+                          now=t0 + timedelta(hours=1))
+    panel = ShiftPanel()
+    qtbot.addWidget(panel)
+    panel.show_counters(c)
+    assert not panel.chars.isHidden()
+    assert panel.chars.text() == "worst characteristics: D1 1\u00d7 NOK, T2 1\u00d7 not measurable, F3 at most 50% of the tolerance"
+    panel.show_counters(None)
+    assert panel.chars.isHidden()

@@ -428,7 +428,7 @@
     </message>
     <message>
         <source>no reason recorded</source>
-        <extracomment>The history database in a run&apos;s OUTDIR (the ``history`` plugin&apos;s :data:`HISTORY_FILE`; the name is repeated here so that the core does not import a plugin). Tables a cell&apos;s settings file may hold: ``[shifts]`` (here), ``[gui]`` (the operator window) and ``[server]`` (``inspector serve``&apos;s).</extracomment>
+        <extracomment>The history database in a run&apos;s OUTDIR (the ``history`` plugin&apos;s :data:`HISTORY_FILE`; the name is repeated here so that the core does not import a plugin).</extracomment>
         <translation>kein Grund erfasst</translation>
     </message>
     <message>
@@ -442,6 +442,10 @@
     <message>
         <source>worst regions (parts with a defect there, defects, worst mm):</source>
         <translation>schlechteste Bereiche (Teile mit Fehlstelle dort, Fehlstellen, max. mm):</translation>
+    </message>
+    <message>
+        <source>worst characteristics (parts, NOK, not measurable, most of the tolerance used):</source>
+        <translation>schlechteste Merkmale (Teile, NIO, nicht messbar, größter Anteil der Toleranz):</translation>
     </message>
     <message>
         <source>errors by reason:</source>
@@ -485,6 +489,22 @@
     <message>
         <source>no error in this shift</source>
         <translation>keine Störung in dieser Schicht</translation>
+    </message>
+    <message>
+        <source>{id} {n}× NOK</source>
+        <translation>{id} {n}× NIO</translation>
+    </message>
+    <message>
+        <source>{id} {n}× not measurable</source>
+        <translation>{id} {n}× nicht messbar</translation>
+    </message>
+    <message>
+        <source>{id} at most {share} of the tolerance</source>
+        <translation>{id} höchstens {share} der Toleranz</translation>
+    </message>
+    <message>
+        <source>worst characteristics: {list}</source>
+        <translation>schlechteste Merkmale: {list}</translation>
     </message>
 </context>
 <context>

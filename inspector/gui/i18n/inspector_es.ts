@@ -428,7 +428,7 @@
     </message>
     <message>
         <source>no reason recorded</source>
-        <extracomment>The history database in a run&apos;s OUTDIR (the ``history`` plugin&apos;s :data:`HISTORY_FILE`; the name is repeated here so that the core does not import a plugin). Tables a cell&apos;s settings file may hold: ``[shifts]`` (here), ``[gui]`` (the operator window) and ``[server]`` (``inspector serve``&apos;s).</extracomment>
+        <extracomment>The history database in a run&apos;s OUTDIR (the ``history`` plugin&apos;s :data:`HISTORY_FILE`; the name is repeated here so that the core does not import a plugin).</extracomment>
         <translation>sin motivo registrado</translation>
     </message>
     <message>
@@ -442,6 +442,10 @@
     <message>
         <source>worst regions (parts with a defect there, defects, worst mm):</source>
         <translation>peores zonas (piezas con un defecto allí, defectos, peor mm):</translation>
+    </message>
+    <message>
+        <source>worst characteristics (parts, NOK, not measurable, most of the tolerance used):</source>
+        <translation>peores características (piezas, NOK, no medibles, mayor parte de la tolerancia usada):</translation>
     </message>
     <message>
         <source>errors by reason:</source>
@@ -485,6 +489,22 @@
     <message>
         <source>no error in this shift</source>
         <translation>ningún error en este turno</translation>
+    </message>
+    <message>
+        <source>{id} {n}× NOK</source>
+        <translation>{id} {n}× NOK</translation>
+    </message>
+    <message>
+        <source>{id} {n}× not measurable</source>
+        <translation>{id} {n}× no medible</translation>
+    </message>
+    <message>
+        <source>{id} at most {share} of the tolerance</source>
+        <translation>{id} como máximo {share} de la tolerancia</translation>
+    </message>
+    <message>
+        <source>worst characteristics: {list}</source>
+        <translation>peores características: {list}</translation>
     </message>
 </context>
 <context>
