@@ -452,11 +452,13 @@ def format_shifts(counters: Sequence[ShiftCounters], *, top: int = 5) -> str:
     return "\n\n".join(format_shift(c, top=top) for c in counters)
 
 
-def print_shifts(outdir: str | Path, *, shifts: int = 1, config: str | Path | None = None) -> int:
+def print_shifts(outdir: str | Path, *, shifts: int = 1, config: str | Path | None = None,
+                 pdf: str | Path | None = None) -> int:
     """``inspector history OUTDIR --shift [N] [--config cell.toml]``: print the counters of the
     current shift and the ``N - 1`` before it, with the shift times of ``config`` (else the
     configuration folder's ``cell.toml``, see :func:`inspector.cell.cell_file`; else the defaults); the exit
-    status (2: bad settings, 3: no readable history), the reason in one line on stderr."""
+    status (2: bad settings, 3: no readable history or the PDF not written), the reason in one
+    line on stderr. ``pdf``: also the shift report there (:mod:`inspector.shift_report`)."""
     if shifts < 1:
         print(f"inspector: error: --shift: expected a number >= 1, got {shifts}", file=sys.stderr)
         return 2
@@ -471,4 +473,13 @@ def print_shifts(outdir: str | Path, *, shifts: int = 1, config: str | Path | No
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
     print(format_shifts(counters))
+    if pdf is not None:
+        from inspector.shift_report import render_shift_pdf
+
+        try:
+            written = render_shift_pdf(counters, Path(pdf), source=str(Path(outdir).resolve()))
+        except OSError as e:
+            print(f"inspector: error: --pdf {pdf}: cannot be written ({e.strerror or e})", file=sys.stderr)
+            return 3
+        print(f"shift report written to {written}")
     return 0

@@ -463,6 +463,7 @@ def add_parser(subparsers) -> None:
                    help="the current shift's counters (and the N-1 before it): yield, worst regions, errors by reason")
     p.add_argument("--config", metavar="TOML", help="the cell's settings for --shift ([shifts]; default cell.toml in "
                                                     "$INSPECTOR_CONFIG_DIR or ~/.config/inspector when present)")
+    p.add_argument("--pdf", metavar="FILE", help="with --shift: also the shift report as a PDF, one A4 page per shift")
 
 
 def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
@@ -688,7 +689,10 @@ def run(args) -> int:
             return 2
         from inspector.shift import print_shifts
 
-        return print_shifts(args.outdir, shifts=args.shift, config=args.config)
+        return print_shifts(args.outdir, shifts=args.shift, config=args.config, pdf=args.pdf)
+    if args.pdf is not None:
+        print("inspector: error: --pdf: the shift report; give --shift too", file=sys.stderr)
+        return 2
     if args.verify:
         if args.outdir is None or args.send or args.url:
             print("inspector: error: --verify: give OUTDIR only (its history.sqlite is checked)", file=sys.stderr)

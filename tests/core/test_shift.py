@@ -229,3 +229,34 @@ def test_the_worst_characteristics_of_the_shift(tmp_path):
     assert t2.worst_use == pytest.approx(0.004 / 0.02)  # no deviation in the row: measured - nominal
     text = format_shifts([c])
     assert "worst characteristics" in text and "D1" in text and "120.0 %" in text
+
+
+def test_the_shift_report_pdf_holds_the_counters(tmp_path, capsys):
+    """`inspector history OUTDIR --shift 2 --pdf FILE`: one A4 page per shift, its text the
+    counters `--shift` prints; refused without --shift; an unwritable file is one line, exit 3."""
+    from pypdf import PdfReader
+
+    from inspector.history_store import record
+    from inspector.model import InspectionResult
+
+    now = datetime.now(UTC)
+    rows = [{"id": "D1", "measured": 36.06, "nominal": 36.0, "lower": -0.05, "upper": 0.05, "verdict": "nok"}]
+    record(InspectionResult("p1", "r", "fail", None, {}, extras={"characteristics": rows}), tmp_path, now=now)
+    record(InspectionResult("p2", "r", "pass", None, {}), tmp_path, now=now)
+    record(InspectionResult("p3", "r", "error", "rig.json: not valid JSON (line 3 column 1)", {}), tmp_path, now=now)
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[shifts]\nstarts = ["00:00", "12:00"]\nnames = ["am", "pm"]\ntimezone = "UTC"\n')
+    pdf = tmp_path / "shift.pdf"
+    assert main(["history", str(tmp_path), "--shift", "2", "--config", str(cell), "--pdf", str(pdf)]) == 0
+    assert f"shift report written to {pdf}" in capsys.readouterr().out
+    pages = PdfReader(pdf).pages
+    assert len(pages) == 2
+    assert all([round(float(p.mediabox.width)), round(float(p.mediabox.height))] == [595, 842] for p in pages)  # A4
+    text = pages[1].extract_text()  # the current shift: the three rows
+    for word in ("Shift report", "inspected", "3", "50.0 %", "D1", "rig.json: not valid JSON", "Errors by reason"):
+        assert word in text, word
+    assert "no inspection in this shift" in pages[0].extract_text()
+    assert main(["history", str(tmp_path), "--pdf", str(pdf)]) == 2
+    assert "--pdf: the shift report; give --shift too" in capsys.readouterr().err
+    assert main(["history", str(tmp_path), "--shift", "--config", str(cell), "--pdf", str(tmp_path / "no" / "x.pdf")]) == 3
+    assert capsys.readouterr().err.startswith(f"inspector: error: --pdf {tmp_path / 'no' / 'x.pdf'}: cannot be written")
