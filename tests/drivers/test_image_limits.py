@@ -112,9 +112,9 @@ def test_a_small_file_declaring_30000x30000_pixels_is_refused_before_decoding(ca
     bomb = crafted_png(30000, 30000, idat=_zeros_deflated(64 << 20))  # valid data for 2000 rows
     assert len(bomb) < 200_000
     (capture / "images" / "cam01.png").write_bytes(bomb)
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: a loaded machine does not slow it
     assert _refusal(capture) == "images/cam01.png: size 30000x30000, rig.json says 64x48 for camera cam01"
-    assert time.perf_counter() - t0 < 2.0
+    assert time.process_time() - t0 < 2.0
 
 
 def test_a_16_bit_rgba_png_is_bounded_by_its_camera(capture):
@@ -168,11 +168,11 @@ def test_the_file_size_is_bounded_by_the_cameras_size_before_it_is_read(capture,
         f.truncate(3 << 30)
     (capture / "images" / "cam00.png").unlink()
     (capture / "images" / "cam00.png").symlink_to("huge.bin")
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: a loaded machine does not slow it
     most = image_file_bytes(W, H)
     assert _refusal(capture) == (f"images/cam00.png: {3 << 30} bytes, more than the {most} a 64x48 image may have "
                                  "(INSPECTOR_MAX_IMAGE_METADATA_BYTES)")
-    assert time.perf_counter() - t0 < 1.0
+    assert time.process_time() - t0 < 1.0
     # The bound is the camera's pixels at 16-bit RGBA, stored, plus the metadata allowance:
     # a real image with 2 MiB of text in it is read, and refused once the allowance is 1 MiB.
     (capture / "images" / "cam00.png").unlink()

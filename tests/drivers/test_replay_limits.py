@@ -68,10 +68,11 @@ def test_json_depth_matches_the_parsed_document(doc):
 
 @pytest.mark.parametrize("text", [b'"' + b'a\\"' * 2**20, b'"' * 2**22, b"[" * 2**22, b'"' + b"\\" * 2**22])
 def test_json_depth_is_linear_on_the_worst_text(text):
-    """An unterminated string full of escaped quotes made a regex for strings quadratic."""
-    t0 = time.perf_counter()
+    """An unterminated string full of escaped quotes made a regex for strings quadratic (4 MiB:
+    minutes). This process's CPU time, not the wall clock: a loaded machine does not slow it."""
+    t0 = time.process_time()
     json_depth(text)
-    assert time.perf_counter() - t0 < 3.0  # 4 MiB; about 0.1 s
+    assert time.process_time() - t0 < 3.0  # 4 MiB; about 0.1 s
 
 
 @pytest.mark.parametrize("depth", [500, 700, 900, 5000, 100_000])
@@ -137,10 +138,10 @@ def test_a_json_file_over_the_size_bound_is_refused_before_it_is_read(tmp_path, 
         f.truncate(3 * 2**30)
     (folder / "rig.json").unlink()
     (folder / "rig.json").symlink_to(huge)
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: a loaded machine does not slow it
     with pytest.raises(CaptureError) as e:
         read_capture(folder)
-    assert time.perf_counter() - t0 < 1.0
+    assert time.process_time() - t0 < 1.0
     assert str(e.value) == (f"rig.json: {3 * 2**30} bytes, more than the {16 * 2**20} a JSON input may have "
                             "(INSPECTOR_MAX_JSON_BYTES)")
     monkeypatch.setenv("INSPECTOR_MAX_JSON_BYTES", "100")
@@ -166,10 +167,10 @@ def test_a_bad_limit_in_the_environment_is_one_line(monkeypatch):
 def test_a_rig_with_too_many_cameras_is_refused_before_they_are_built(tmp_path, monkeypatch):
     path = tmp_path / "rig.json"
     path.write_text(_rig_text(5000))  # 0.75 MB: within the size bound
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU time: a loaded machine does not slow it
     with pytest.raises(CaptureError, match=r"^rig\.json: 5000 cameras, more than the 1024 a rig may have \(INSPECTOR_MAX_CAMERAS\)$"):
         read_rig(path)
-    assert time.perf_counter() - t0 < 2.0  # building them took seconds (10^6: minutes, 2 GB)
+    assert time.process_time() - t0 < 2.0  # building them took seconds (10^6: minutes, 2 GB)
     monkeypatch.setenv("INSPECTOR_MAX_CAMERAS", "5000")
     assert len(read_rig(path)) == 5000
 
