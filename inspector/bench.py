@@ -829,15 +829,15 @@ def dask_throughput(args: argparse.Namespace) -> int:
     the kernels' cache, the reference's index: once per worker process): the figures are the
     steady rate of a running cluster, result folders and history rows written. Also measured,
     for a cluster of N machines: the client's own time per capture (its result folder and
-    history row, :func:`inspector.distributed_run.record`), and the bytes a worker reads
+    history row, :func:`inspector.runner.record_outcome`), and the bytes a worker reads
     (the capture folder) and sends back (the pickled result). Exit 0, or 3 if a capture failed.
     """
     import pickle
     import shutil
 
-    from inspector.distributed_run import connect, inspect_folder, record, run_on_cluster, worker_setup
+    from inspector.distributed_run import connect, inspect_folder, run_on_cluster, worker_setup
     from inspector.errors import RecipeError
-    from inspector.runner import Outcome
+    from inspector.runner import Outcome, record_outcome
     from inspector.session import Session, Source
 
     _check(args)
@@ -869,7 +869,7 @@ def dask_throughput(args: argparse.Namespace) -> int:
         rec = []
         for i in range(5):
             t0 = time.perf_counter()
-            record(Outcome(result, None), session.recipe, session.pm, work / "out-record")
+            record_outcome(Outcome(result, None), session.recipe, session.pm, work / "out-record")
             rec.append(time.perf_counter() - t0)
         doc["client_record_s"] = statistics.median(rec)
         failed = 0

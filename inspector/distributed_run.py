@@ -2,16 +2,21 @@
 inspected on the workers of a Dask cluster (issue 17).
 
 One job: spread the *inspections* over the cluster and keep everything else exactly as a
-local run does it. The client process (the one that runs ``inspector run``)
+local run does it. Only the executing step differs: the client process (the one that runs
+``inspector run``)
 
 * validates the recipe and its reference (the :class:`~inspector.session.Session` the local
-  run opens), expands the ``--capture`` folders and refuses two of one name, as the local run;
-* submits one task per capture folder (:func:`inspect_folder`), with a key of its own, and
-  collects the results as they complete (``as_completed``);
-* writes every result folder (:func:`inspector.outputs.write_result`: built hidden, renamed
-  whole) and calls ``inspector_on_result`` (the ``history`` plugin's row, an integrator's PLC
-  or MES hook) itself, with the local run's code, once per capture, in the order the results
-  arrive; ``inspector_on_run_start`` and ``_end`` too.
+  run opens), expands the ``--capture`` folders and refuses two of one name
+  (:func:`inspector.session.capture_folders`, as the local run), then connects (:func:`connect`);
+* runs the session (:meth:`Session.run <inspector.session.Session.run>`, the one run
+  envelope) with a :class:`DaskExecutor`: it submits one task per capture folder
+  (:func:`inspect_folder`), with a key of its own, and yields the results as they complete
+  (``as_completed``);
+* so the session writes every result folder (:func:`inspector.outputs.write_result`: built
+  hidden, renamed whole) and calls ``inspector_on_result`` (the ``history`` plugin's row, an
+  integrator's PLC or MES hook) itself (:func:`inspector.runner.record_outcome`), once per
+  capture, in the order the results arrive; ``inspector_on_run_start`` and ``_end``, the
+  events and the warnings too, as for a local run.
 
 A worker only reads the capture folder and runs the recipe's stages (``inspector_before_stage``,
 ``_after_stage`` and ``_on_stage_error`` are called there, by a plugin manager the worker
@@ -38,10 +43,8 @@ import dataclasses
 import hashlib
 import os
 import sys
-import time
-import traceback
 import uuid
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -53,10 +56,11 @@ if TYPE_CHECKING:
     from inspector.model import InspectionResult
     from inspector.recipe import Budget, Recipe
     from inspector.reference import Reference
+    from inspector.registry import Acquisition
     from inspector.runner import Outcome
-    from inspector.session import Inspected, RunSummary, Session
+    from inspector.session import RunSummary, Session
 
-__all__ = ["WorkerSetup", "worker_setup", "inspect_folder", "connect", "run_on_cluster"]
+__all__ = ["WorkerSetup", "worker_setup", "inspect_folder", "connect", "DaskExecutor", "run_on_cluster"]
 
 #: Retries of a capture's task that raised (a worker killed mid-task is rescheduled by the
 #: scheduler itself, up to its ``allowed-failures``).
@@ -136,28 +140,19 @@ def inspect_folder(setup: WorkerSetup, folder: str) -> tuple[InspectionResult, s
     """Inspect one capture folder on a worker: ``(result, traceback or None)``; writes nothing.
 
     Reads the folder as the local run does (the replay driver's naming and reader, its
-    errors one line each), then runs the stages (:func:`inspector.runner.inspect_capture`).
+    errors one line each), then runs the stages (:func:`inspector.runner.inspect_acquisition`).
     A capture that cannot be read or inspected is a result with verdict ``error``, as in the
     local run; only a bug of this wrapper raises (and the task is retried).
     """
-    from inspector.runner import _error_result, inspect_capture
     from inspector.capture_folder import named_acquisition, read_capture
+    from inspector.runner import inspect_acquisition
 
     acq = named_acquisition(Path(folder), read_capture)
-    t0 = time.perf_counter()
     try:
         recipe, reference, pm = _load_on_worker(setup)
     except InspectorError as exc:  # the recipe or its reference, as this worker sees them
         return _setup_error(setup, acq.name, f"on the worker: {exc}"), None
-    try:
-        capture = acq.load()
-    except InspectorError as exc:
-        dt = time.perf_counter() - t0
-        return _error_result(acq.name, recipe, str(exc), {"load": dt, "total": dt}), None
-    except Exception as exc:  # noqa: BLE001 - as the local run: that capture only
-        reason = f"internal error reading capture: {type(exc).__name__}: {' '.join(str(exc).split())}"
-        return _error_result(acq.name, recipe, reason, {"total": time.perf_counter() - t0}), traceback.format_exc()
-    outcome = inspect_capture(capture, recipe, reference, pm, load_s=time.perf_counter() - t0)
+    outcome = inspect_acquisition(acq, recipe, reference, pm)
     return outcome.result, outcome.trace
 
 
@@ -206,12 +201,109 @@ def connect(scheduler: str | None, workers: int | None) -> tuple[Any, Any]:
         raise
 
 
+class DaskExecutor:
+    """The :class:`~inspector.runner.Executor` of a Dask cluster: one task per capture folder
+    (:func:`inspect_folder` on a worker), the outcomes yielded as the tasks complete, for the
+    session to record.
+
+    Parameters
+    ----------
+    client : distributed.Client
+        The cluster's client (the caller keeps and closes it).
+    setup : WorkerSetup
+        What the workers inspect with (:func:`worker_setup`).
+    folders : mapping of str to str
+        Each capture's folder, absolute, by the name its acquisition has.
+    retries : int
+        Retries of a task that raised.
+    progress : bool
+        A progress bar on stderr when it is a terminal.
+    """
+
+    def __init__(self, client: Any, setup: WorkerSetup, folders: Mapping[str, str], *, retries: int = RETRIES,
+                 progress: bool = False) -> None:
+        self.client = client
+        self.setup = setup
+        self.folders = dict(folders)
+        self.retries = retries
+        self.progress = progress
+        self._futures: dict[Any, str] = {}
+        self._bar: _Bar | None = None
+
+    def warnings(self) -> list[str]:
+        """A scheduler without a worker: the run waits (for ever, if none joins)."""
+        if not self.client.scheduler_info().get("workers"):
+            return ["the scheduler has no worker yet: the captures wait until one joins"]
+        return []
+
+    def execute(self, recipe: Recipe, acquisitions: Iterable[Acquisition], pm: PluginManager, *,
+                reference: Reference | None, should_abort: Callable[[], bool] | None = None) -> Iterator[Outcome]:
+        """Submit every acquisition's task at once, then yield each capture's outcome as it
+        completes, once (a result that comes again is dropped). A task the cluster could not
+        finish is an ``error`` outcome with the reason in one line. The workers inspect with
+        :attr:`setup` (``pm``, ``reference`` and ``should_abort`` are the client's: unused);
+        closing the iterator cancels the tasks not done."""
+        from distributed import as_completed
+
+        from inspector.runner import ABORTED, Outcome, error_result
+
+        recorded: set[str] = set()
+        try:
+            futures = self._submit(acquisitions)
+            bar = self._bar = _Bar(len(futures), self.progress)
+            for fut in as_completed(list(futures), loop=self.client.loop):
+                name = futures[fut]
+                try:
+                    result, trace = fut.result()
+                except Exception as exc:  # noqa: BLE001 - the cluster lost this task for good
+                    result, trace = error_result(name, recipe, _lost(exc), {"total": 0.0}), None
+                finally:
+                    fut.release()
+                if name in recorded or result.verdict == ABORTED:  # once per capture, whatever the cluster did
+                    continue
+                recorded.add(name)
+                bar.clear()  # the session records it and its subscribers print its lines
+                yield Outcome(result, None, trace)
+                bar.step(result)
+                del result, trace
+        finally:
+            self.close()
+
+    def _submit(self, acquisitions: Iterable[Acquisition]) -> dict[Any, str]:
+        """One task per acquisition, keyed by its folder and this run: future -> capture name."""
+        token = uuid.uuid4().hex[:12]
+        self._futures = {}
+        for acq in acquisitions:
+            folder = self.folders.get(acq.name)
+            if folder is None:
+                raise RecipeError(f"{acq.name}: not a capture folder of this cluster run")
+            key = f"inspector-{hashlib.sha1(folder.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}-{token}"
+            fut = self.client.submit(inspect_folder, self.setup, folder, key=key, pure=False, retries=self.retries)
+            self._futures[fut] = acq.name
+        return dict(self._futures)
+
+    def close(self) -> None:
+        """Cancel the tasks not done yet (a run that ended early: Ctrl-C, a failure) and
+        close the progress bar."""
+        pending = [f for f in self._futures if not f.done()]
+        self._futures = {}
+        if pending:
+            try:
+                self.client.cancel(pending)
+            except Exception:  # noqa: BLE001 - closing anyway
+                pass
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
+
+
 def run_on_cluster(session: Session, captures: Sequence[str], *, scheduler: str | None = None,
                    workers: int | None = None, client: Any = None, progress: bool = False,
                    retries: int = RETRIES) -> RunSummary:
     """Inspect the capture folders ``captures`` (or folders of them) on a Dask cluster, into
     ``session.outdir``, exactly as ``session.run`` would in this process: the same result
     folders, history rows, events (to the session's subscribers) and :class:`RunSummary`.
+    It is ``session.run`` with a :class:`DaskExecutor`.
 
     Parameters
     ----------
@@ -230,95 +322,30 @@ def run_on_cluster(session: Session, captures: Sequence[str], *, scheduler: str 
     KeyboardInterrupt
         Ctrl-C: the tasks are cancelled; results written so far are kept.
     """
+    from inspector.capture_folder import named_acquisition
+    from inspector.session import Source, capture_folders
+
     with _QuietDask():
-        return _run(session, captures, scheduler, workers, client, progress, retries)
-
-
-def _run(session: Session, captures: Sequence[str], scheduler: str | None, workers: int | None, client: Any,
-         progress: bool, retries: int) -> RunSummary:
-    from inspector.runner import ABORTED, Outcome, _error_result
-    from inspector.session import VERDICTS, Inspected, RunEnded, RunStarted, RunSummary, Warned, _distinct_names, _result_folder
-    from inspector.capture_folder import expand, named_acquisition
-
-    setup = worker_setup(session)
-    folders = _distinct_names(expand([str(c) for c in captures]))
-    if not folders:
-        raise RecipeError("no capture to inspect")
-    # Absolute, not resolved: a capture is named after its folder as the local run names it.
-    items = [(named_acquisition(f, _unread).name, os.path.abspath(f)) for f in folders]
-    own = client is None
-    cluster = None
-    if own:
-        client, cluster = connect(scheduler, workers)
-    recipe, pm = session.recipe, session.pm
-    emit = session._emit
-    counts = dict.fromkeys(VERDICTS, 0)
-    warned: list[str] = []
-    ended = "done"
-    futures: dict[Any, tuple[str, str]] = {}
-    try:
-        outdir = _result_folder(session.outdir)
-        if not client.scheduler_info().get("workers"):
-            emit(Warned("run", "the scheduler has no worker yet: the captures wait until one joins"))
-        slow = _slow(recipe, pm.on_run_start(recipe, outdir, "captures"))
-        bar = _Bar(len(items), progress)
-        try:
-            emit(RunStarted("captures", len(items), outdir))
-            for w in slow:
-                emit(Warned("run", w))
-            from distributed import as_completed
-
-            token = uuid.uuid4().hex[:12]
-            for name, folder in items:
-                key = f"inspector-{hashlib.sha1(folder.encode('utf-8', 'surrogateescape')).hexdigest()[:16]}-{token}"
-                fut = client.submit(inspect_folder, setup, folder, key=key, pure=False, retries=retries)
-                futures[fut] = (name, folder)
-            recorded: set[str] = set()
-            i = 0
-            for fut in as_completed(list(futures), loop=client.loop):
-                name, folder = futures[fut]
-                try:
-                    result, trace = fut.result()
-                except Exception as exc:  # noqa: BLE001 - the cluster lost this task for good
-                    result, trace = _error_result(name, recipe, _lost(exc), {"total": 0.0}), None
-                finally:
-                    fut.release()
-                if name in recorded or result.verdict == ABORTED:  # once per capture, whatever the cluster did
-                    continue
-                recorded.add(name)
-                outcome = record(Outcome(result, None, trace), recipe, pm, outdir)
-                i += 1
-                counts[outcome.result.verdict] = counts.get(outcome.result.verdict, 0) + 1
-                bar.show(emit, Inspected(i, len(items), outcome, outcome.folder))
-                for w in outcome.result.stats.get("warnings", ()):
-                    if w not in warned:
-                        warned.append(w)
-                        emit(Warned(outcome.result.capture, w))
-                del outcome, result
-        except KeyboardInterrupt:
-            ended = "interrupted"
-            raise
-        except BaseException:
-            ended = "failed"
-            raise
-        finally:
-            bar.close()
-            summary = RunSummary(dict(counts), ended, outdir, None, tuple(warned))
-            for w in _slow(recipe, pm.on_run_end(recipe, outdir, summary)):
-                emit(Warned("run", w))
-            emit(RunEnded(summary))
-        return summary
-    finally:
-        pending = [f for f in futures if not f.done()]
-        if pending:
-            try:
-                client.cancel(pending)
-            except Exception:  # noqa: BLE001 - closing anyway
-                pass
+        setup = worker_setup(session)
+        folders = capture_folders([str(c) for c in captures])
+        if not folders:
+            raise RecipeError("no capture to inspect")
+        # Absolute, not resolved: a capture is named after its folder as the local run names it.
+        paths = [os.path.abspath(f) for f in folders]
+        by_name = {named_acquisition(f, _unread).name: p for f, p in zip(folders, paths)}
+        own = client is None
+        cluster = None
         if own:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            client, cluster = connect(scheduler, workers)
+        executor = DaskExecutor(client, setup, by_name, retries=retries, progress=progress)
+        try:
+            return session.run(Source(captures=tuple(paths)), executor=executor)
+        finally:
+            executor.close()
+            if own:
+                client.close()
+                if cluster is not None:
+                    cluster.close()
 
 
 def _lost(exc: BaseException) -> str:
@@ -358,40 +385,9 @@ def _unread(folder: Path) -> Any:
     raise AssertionError("the client never reads a capture")  # pragma: no cover
 
 
-def record(outcome: Outcome, recipe: Recipe, pm: PluginManager, outdir: Path) -> Outcome:
-    """Write one capture's result folder, its CSV exports, and call ``inspector_on_result``
-    (the history row), in this process: what :func:`inspector.runner.run_batch` does after
-    each inspection, step for step, with its functions."""
-    from inspector import outputs
-    from inspector.runner import _export_csv, _unwritten, _with, hook_warning
-
-    folder = None
-    try:
-        folder = outputs.write_result(outcome.result, outdir, trace=outcome.trace)
-    except InspectorError as exc:  # a name that cannot be a result folder, a full disk
-        outcome = _unwritten(outcome, str(exc))
-    else:
-        outcome = dataclasses.replace(outcome, folder=folder)
-        _export_csv(outcome.result, folder, recipe.outputs.csv)
-    times = pm.on_result(outcome.result, folder)
-    if times:
-        slow = [hook_warning(k, recipe.budget.hook_s) for k, t in times.items() if t > recipe.budget.hook_s]
-        outcome = dataclasses.replace(outcome, result=_with(outcome.result, times, slow))
-        if folder is not None:
-            outputs.rewrite_result_json(outcome.result, folder)
-    return outcome
-
-
-def _slow(recipe: Recipe, times: dict[str, float]) -> list[str]:
-    from inspector.runner import hook_warning
-
-    budget = recipe.budget.hook_s
-    return [hook_warning(k, budget) for k, t in times.items() if t > budget]
-
-
 class _Bar:
-    """A tqdm progress bar on stderr when it is a terminal; the lines printed by the
-    subscribers (stdout) go above it."""
+    """A tqdm progress bar on stderr when it is a terminal: cleared while the session records
+    a capture and its subscribers print its lines (stdout, stderr), then drawn again one step on."""
 
     def __init__(self, total: int, enabled: bool) -> None:
         self.bar: Any = None
@@ -403,19 +399,18 @@ class _Bar:
             except ImportError:
                 self.bar = None
 
-    def show(self, emit: Callable[[Inspected], None], event: Inspected) -> None:
-        """``emit(event)`` (whose subscribers print the capture's line), then one step."""
-        if self.bar is None:
-            emit(event)
-            return
-        from tqdm import tqdm
+    def clear(self) -> None:
+        if self.bar is not None:
+            self.bar.clear()
 
-        with tqdm.external_write_mode(file=sys.stdout):
-            emit(event)
-        result = event.outcome.result
-        self.bar.set_postfix_str(f"{result.capture}: {result.verdict}", refresh=False)
-        self.bar.update(1)
+    def step(self, result: InspectionResult) -> None:
+        """One capture more, named with its verdict."""
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"{result.capture}: {result.verdict}", refresh=False)
+            self.bar.update(1)
+            self.bar.refresh()
 
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+            self.bar = None

@@ -21,6 +21,12 @@ Time: each stage, and each plugin's lifecycle hooks (``hook:PLUGIN:HOOK``, summe
 capture's calls), is in ``timings_s``; ``inspector_on_result`` runs after ``result.json`` is
 written, which is then rewritten with its time. A stage or one hook call slower than the
 recipe's :class:`~inspector.recipe.Budget` is a warning naming it in ``stats.warnings``.
+
+One envelope, several executors: :func:`run_batch` records every outcome
+(:func:`record_outcome`: the result folder, the CSV exports, ``inspector_on_result`` and its
+time) whatever produced it; an :class:`Executor` does only the executing step, turning
+acquisitions into unrecorded outcomes: :class:`LocalExecutor` loads and inspects them in this
+process (the default), :class:`inspector.distributed_run.DaskExecutor` on a Dask cluster.
 """
 
 from __future__ import annotations
@@ -29,10 +35,10 @@ import dataclasses
 import math
 import time
 import traceback
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -46,7 +52,8 @@ from inspector.reference import Reference
 from inspector.registry import OUTPUTS, Acquisition, StageSpec
 from inspector.watchdog import StageAborted, StageTimeout, call_with_limit
 
-__all__ = ["ABORTED", "Outcome", "inspect_capture", "run_batch", "exit_status", "check_output", "json_extras"]
+__all__ = ["ABORTED", "Outcome", "Executor", "LocalExecutor", "inspect_capture", "inspect_acquisition", "error_result",
+           "record_outcome", "run_batch", "exit_status", "check_output", "json_extras", "hook_warning"]
 
 #: The type of each kind's output (segment: a tuple of these).
 _OUTPUT_TYPES: dict[str, type] = {
@@ -142,12 +149,12 @@ def inspect_capture(
 
     def failed(reason: str, trace: str | None = None) -> Outcome:
         timings["total"] = time.perf_counter() - t_start
-        res = _error_result(capture.name, recipe, reason, timings, capture)
+        res = error_result(capture.name, recipe, reason, timings, capture)
         return Outcome(hooks.into(res), ctx, trace)
 
     def aborted(reason: str) -> Outcome:
         timings["total"] = time.perf_counter() - t_start
-        res = _error_result(capture.name, recipe, reason, timings, capture)
+        res = error_result(capture.name, recipe, reason, timings, capture)
         return Outcome(dataclasses.replace(res, verdict=ABORTED), ctx)
 
     budget = recipe.budget
@@ -416,7 +423,10 @@ def _path(recipe: Recipe) -> str | None:
     return str(recipe.path) if recipe.path is not None else None
 
 
-def _error_result(name: str, recipe: Recipe, reason: str, timings: dict[str, float], capture: Capture | None = None) -> InspectionResult:
+def error_result(name: str, recipe: Recipe, reason: str, timings: dict[str, float],
+                 capture: Capture | None = None) -> InspectionResult:
+    """The result of capture ``name`` that could not be inspected: verdict ``"error"`` and the
+    one-line ``reason``, with the capture's rig and metadata when it was read."""
     return InspectionResult(
         capture=name,
         recipe=recipe.name,
@@ -430,6 +440,98 @@ def _error_result(name: str, recipe: Recipe, reason: str, timings: dict[str, flo
     )
 
 
+def inspect_acquisition(acq: Acquisition, recipe: Recipe, reference: Reference | None, pm: PluginManager, *,
+                        should_abort: Callable[[], bool] | None = None) -> Outcome:
+    """Read ``acq`` and inspect it (:func:`inspect_capture`); a capture that cannot be read is
+    an :class:`Outcome` with verdict ``"error"`` and a one-line reason (and, for a bug of its
+    reader, the traceback). Writes nothing."""
+    t0 = time.perf_counter()
+    try:
+        capture = acq.load()
+    except InspectorError as exc:
+        dt = time.perf_counter() - t0
+        return Outcome(error_result(acq.name, recipe, str(exc), {"load": dt, "total": dt}), None)
+    except Exception as exc:  # noqa: BLE001 - that capture only
+        reason = f"internal error reading capture: {type(exc).__name__}: {' '.join(str(exc).split())}"
+        return Outcome(error_result(acq.name, recipe, reason, {"total": time.perf_counter() - t0}), None,
+                       traceback.format_exc())
+    return inspect_capture(capture, recipe, reference, pm, load_s=time.perf_counter() - t0, should_abort=should_abort)
+
+
+class Executor(Protocol):
+    """The executing step of a run: acquisitions in, unrecorded :class:`Outcome` objects out.
+
+    :func:`run_batch` (and :meth:`inspector.session.Session.run` through it) is the envelope
+    around it: it records each outcome as it comes (:func:`record_outcome`) and ends the batch
+    at the first ``"aborted"`` one. An executor writes nothing and calls no
+    ``inspector_on_result``; it yields each capture at most once, in any order, and stops its
+    work when its iterator is closed.
+    """
+
+    def warnings(self) -> list[str]:
+        """Warnings about the run about to start (the session emits each as
+        ``Warned("run", text)`` before ``inspector_on_run_start``)."""
+        ...
+
+    def execute(self, recipe: Recipe, acquisitions: Iterable[Acquisition], pm: PluginManager, *,
+                reference: Reference | None, should_abort: Callable[[], bool] | None = None) -> Iterator[Outcome]:
+        """One unrecorded outcome per acquisition (``should_abort``: asked between stages,
+        where the executor can)."""
+        ...
+
+
+class LocalExecutor:
+    """Load and inspect each acquisition in this process, one after the other (the default
+    :class:`Executor`). A capture cancelled between two stages (``should_abort``) is yielded
+    with verdict ``"aborted"`` and ends it: the acquisition iterator is not resumed."""
+
+    def warnings(self) -> list[str]:
+        return []
+
+    def execute(self, recipe: Recipe, acquisitions: Iterable[Acquisition], pm: PluginManager, *,
+                reference: Reference | None, should_abort: Callable[[], bool] | None = None) -> Iterator[Outcome]:
+        for acq in acquisitions:
+            outcome = inspect_acquisition(acq, recipe, reference, pm, should_abort=should_abort)
+            yield outcome
+            if outcome.result.verdict == ABORTED:
+                return
+            outcome = None  # type: ignore[assignment]  # not alive while the next capture is read and inspected
+
+
+def record_outcome(outcome: Outcome, recipe: Recipe, pm: PluginManager, outdir: Path | None) -> Outcome:
+    """Record one inspected capture, in this process: its result folder in ``outdir``
+    (:func:`inspector.outputs.write_result`; none when ``outdir`` is None), its CSV exports,
+    then ``inspector_on_result`` (the history row), whose times (and budget warnings) go into
+    the result and its ``result.json``.
+
+    Returns
+    -------
+    Outcome
+        ``outcome`` with its ``folder`` and the hooks' times; an ``"error"`` in one line when
+        its result folder could not be written (a name such as ``..``, a full disk).
+    """
+    from inspector import outputs
+
+    folder = None
+    if outdir is not None:
+        try:
+            folder = outputs.write_result(outcome.result, Path(outdir), trace=outcome.trace)
+        except InspectorError as exc:
+            # A name that cannot be a result folder (``..``, ``history.sqlite``...):
+            # nothing is written, the capture is an error in one line, the batch goes on.
+            outcome = _unwritten(outcome, str(exc))
+        else:
+            outcome = dataclasses.replace(outcome, folder=folder)
+            _export_csv(outcome.result, folder, recipe.outputs.csv)
+    times = pm.on_result(outcome.result, folder)
+    if times:  # the hooks' time (and budget) into the result, and its result.json
+        slow = [hook_warning(k, recipe.budget.hook_s) for k, t in times.items() if t > recipe.budget.hook_s]
+        outcome = dataclasses.replace(outcome, result=_with(outcome.result, times, slow))
+        if folder is not None:
+            outputs.rewrite_result_json(outcome.result, folder)
+    return outcome
+
+
 def run_batch(
     recipe: Recipe,
     acquisitions: Iterable[Acquisition],
@@ -439,53 +541,35 @@ def run_batch(
     outdir: Path | None = None,
     progress: Callable[[str], None] | None = None,
     should_abort: Callable[[], bool] | None = None,
-) -> Iterator[Outcome]:
-    """Inspect every acquisition in this process; yield one :class:`Outcome` each.
+    executor: Executor | None = None,
+) -> Generator[Outcome, None, None]:
+    """Inspect every acquisition with ``executor`` (default: :class:`LocalExecutor`, in this
+    process); yield one recorded :class:`Outcome` each, in the order the executor gives them.
 
     Outputs are written (when ``outdir`` is given) and ``inspector_on_result`` is called
-    before each outcome is yielded, so nothing is lost if a later capture fails. An aborted
-    capture (``should_abort``) is yielded unwritten and ends the batch: the acquisition
-    iterator is not resumed, so a hot folder keeps that capture (in ``INBOX/processing/``,
-    inspected again at the watcher's next start).
+    (:func:`record_outcome`) before each outcome is yielded, so nothing is lost if a later
+    capture fails. An aborted capture (``should_abort``) is yielded unwritten and ends the
+    batch: the executor is closed, the acquisition iterator is not resumed, so a hot folder
+    keeps that capture (in ``INBOX/processing/``, inspected again at the watcher's next start).
     """
     from inspector import outputs
 
-    for acq in acquisitions:
-        t0 = time.perf_counter()
-        try:
-            capture = acq.load()
-        except InspectorError as exc:
-            outcome = Outcome(_error_result(acq.name, recipe, str(exc), {"load": time.perf_counter() - t0, "total": time.perf_counter() - t0}), None)
-        except Exception as exc:  # noqa: BLE001
-            reason = f"internal error reading capture: {type(exc).__name__}: {' '.join(str(exc).split())}"
-            outcome = Outcome(_error_result(acq.name, recipe, reason, {"total": time.perf_counter() - t0}), None, traceback.format_exc())
-        else:
-            outcome = inspect_capture(capture, recipe, reference, pm, load_s=time.perf_counter() - t0,
-                                      should_abort=should_abort)
-        if outcome.result.verdict == ABORTED:
+    executor = executor if executor is not None else LocalExecutor()
+    outcomes = executor.execute(recipe, acquisitions, pm, reference=reference, should_abort=should_abort)
+    try:
+        for outcome in outcomes:
+            if outcome.result.verdict == ABORTED:
+                yield outcome
+                return
+            outcome = record_outcome(outcome, recipe, pm, outdir)
+            if progress is not None:
+                progress(outputs.one_line(outcome.result))
             yield outcome
-            return
-        folder = None
-        if outdir is not None:
-            try:
-                folder = outputs.write_result(outcome.result, Path(outdir), trace=outcome.trace)
-            except InspectorError as exc:
-                # A name that cannot be a result folder (``..``, ``history.sqlite``...):
-                # nothing is written, the capture is an error in one line, the batch goes on.
-                outcome = _unwritten(outcome, str(exc))
-            else:
-                outcome = dataclasses.replace(outcome, folder=folder)
-                _export_csv(outcome.result, folder, recipe.outputs.csv)
-        times = pm.on_result(outcome.result, folder)
-        if times:  # the hooks' time (and budget) into the result, and its result.json
-            slow = [hook_warning(k, recipe.budget.hook_s) for k, t in times.items() if t > recipe.budget.hook_s]
-            outcome = dataclasses.replace(outcome, result=_with(outcome.result, times, slow))
-            if folder is not None:
-                outputs.rewrite_result_json(outcome.result, folder)
-        if progress is not None:
-            progress(outputs.one_line(outcome.result))
-        yield outcome
-        outcome = capture = None  # type: ignore[assignment]  # not alive while the next capture is read and inspected
+            outcome = None  # type: ignore[assignment]  # not alive while the next capture is read and inspected
+    finally:
+        close = getattr(outcomes, "close", None)
+        if close is not None:
+            close()
 
 
 def _export_csv(result: InspectionResult, folder: Path, csv: bool) -> None:

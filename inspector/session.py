@@ -2,10 +2,14 @@
 
 A :class:`Session` holds a validated recipe, its reference and plugin manager, and a result
 folder. :meth:`Session.run` inspects captures from one source (capture folders, a hot
-folder, or the recipe's own driver) in the calling thread, writes every result and history
-row through the runner, and tells its subscribers what happens as plain events
+folder, or the recipe's own driver), writes every result and history row through the runner
+(:func:`inspector.runner.run_batch`), and tells its subscribers what happens as plain events
 (:class:`RunStarted`, :class:`Inspected`, :class:`Warned`, :class:`RunEnded`). The CLI prints
-them; the GUI turns them into queued Qt signals from its worker thread. Stage progress
+them; the GUI turns them into queued Qt signals from its worker thread. It is the one run
+envelope: the run hooks, the events, the verdict counts and the warnings (once per run) are
+the same whatever inspects the captures, this process (the default
+:class:`~inspector.runner.LocalExecutor`, in the calling thread) or another
+:class:`~inspector.runner.Executor` (a Dask cluster: :mod:`inspector.distributed_run`). Stage progress
 comes from the lifecycle hooks (``inspector_before_stage`` ...), which a front end observes
 by registering a plugin on :attr:`Session.pm`.
 
@@ -17,8 +21,9 @@ nothing is written for it, no history row, and a hot folder keeps it: in
 
 from __future__ import annotations
 
+import contextlib
 import threading
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,7 +34,7 @@ from inspector.recipe import Recipe, load_recipe
 from inspector.reference import Reference
 from inspector.registry import Acquisition
 from inspector import runner
-from inspector.runner import ABORTED, Outcome, exit_status
+from inspector.runner import ABORTED, Executor, Outcome, exit_status
 
 __all__ = [
     "Source",
@@ -40,6 +45,7 @@ __all__ = [
     "RunEnded",
     "Event",
     "Session",
+    "capture_folders",
 ]
 
 VERDICTS = ("pass", "fail", "error", ABORTED)
@@ -228,8 +234,12 @@ class Session:
             driver.close()
 
     # -- running ----------------------------------------------------------------------------
-    def run(self, source: Source | None = None) -> RunSummary:
+    def run(self, source: Source | None = None, *, executor: Executor | None = None) -> RunSummary:
         """Inspect the captures of ``source`` (default: the recipe's driver) until it ends.
+
+        ``executor`` inspects them (default: :class:`~inspector.runner.LocalExecutor`, in
+        this thread); the session records each outcome and emits the events the same way
+        whatever the executor.
 
         Raises
         ------
@@ -246,11 +256,11 @@ class Session:
         try:
             self._stop.clear()
             self._cancel.clear()
-            return self._run(source)
+            return self._run(source, executor if executor is not None else runner.LocalExecutor())
         finally:
             self._running.release()
 
-    def _run(self, source: Source) -> RunSummary:
+    def _run(self, source: Source, executor: Executor) -> RunSummary:
         driver, acquisitions, total, what, own = self._open_source(source)
         counts = dict.fromkeys(VERDICTS, 0)
         warned: list[str] = []
@@ -264,6 +274,8 @@ class Session:
                 self._hand_off(driver, outdir)
             if hasattr(driver, "sleep"):  # a waiting driver notices stop() and cancel()
                 driver.sleep = self._waker(driver.sleep)
+            for w in executor.warnings():  # e.g. a cluster without a worker yet
+                self._emit(Warned("run", w))
             slow = self._slow(self.pm.on_run_start(self.recipe, outdir, what))
             summary = None
             try:
@@ -271,21 +283,25 @@ class Session:
                 for w in slow:
                     self._emit(Warned("run", w))
                 batch = runner.run_batch(self.recipe, self._until_stopped(acquisitions, source.limit), self.pm,
-                                  reference=self.reference, outdir=outdir, should_abort=self._cancel.is_set)
-                i = 0
-                # No enumerate(): it keeps its last (index, outcome) tuple for reuse, which
-                # would hold each inspection (5 MB) in memory until the next one is done.
-                for outcome in batch:
-                    i += 1
-                    result = outcome.result
-                    counts[result.verdict] = counts.get(result.verdict, 0) + 1
-                    folder = outcome.folder  # None: nothing was written (aborted, or a refused name)
-                    self._emit(Inspected(i, total, outcome, folder))
-                    for w in result.stats.get("warnings", ()):
-                        if w not in warned:  # once per run, not once per part
-                            warned.append(w)
-                            self._emit(Warned(result.capture, w))
-                    del outcome, result
+                                         reference=self.reference, outdir=outdir, should_abort=self._cancel.is_set,
+                                         executor=executor)
+                with contextlib.closing(batch):  # an executor's work ends with the run (a cluster's tasks)
+                    i = 0
+                    # No enumerate(): it keeps its last (index, outcome) tuple for reuse, which
+                    # would hold each inspection (5 MB) in memory until the next one is done.
+                    for outcome in batch:
+                        i += 1
+                        result = outcome.result
+                        counts[result.verdict] = counts.get(result.verdict, 0) + 1
+                        folder = outcome.folder  # None: nothing was written (aborted, or a refused name)
+                        self._emit(Inspected(i, total, outcome, folder))
+                        for w in result.stats.get("warnings", ()):
+                            if w not in warned:  # once per run, not once per part
+                                warned.append(w)
+                                self._emit(Warned(result.capture, w))
+                        del outcome, result
+                        if self._stop.is_set():
+                            break  # after the capture in progress, also for an executor that works ahead (a cluster)
                 if self._cancel.is_set():
                     ended = "cancelled"
                 elif self._stop.is_set():
@@ -354,7 +370,7 @@ class Session:
         if source.captures:
             from inspector import capture_folder
 
-            folders = _distinct_names(capture_folder.expand(list(source.captures)))
+            folders = capture_folders(source.captures)
             acquisitions = (capture_folder.named_acquisition(f, capture_folder.read_capture) for f in folders)
             total = min(len(folders), source.limit or len(folders))
             return None, acquisitions, total, "captures", False
@@ -441,14 +457,16 @@ def _result_folder(out: Path) -> Path:
     return outdir
 
 
-def _distinct_names(folders: Sequence[Path] | Iterable[Path]) -> list[Path]:
-    """The capture folders once each; two different folders with the same name would write
-    the same result folder (OUTDIR/<name>/): refused, naming both."""
-    seen: dict[str, Path] = {}
-    out = []
+def capture_folders(captures: Sequence[str]) -> list[Path]:
+    """The capture folders of ``captures`` (capture folders, or folders of them: expanded),
+    each once; two different folders with the same name would write the same result folder
+    (OUTDIR/<name>/): RecipeError, naming both."""
+    from inspector.capture_folder import expand
     from inspector.names import folder_name
 
-    for f in folders:
+    seen: dict[str, Path] = {}
+    out = []
+    for f in expand(list(captures)):
         key = folder_name(f) or str(f)
         if key in seen:
             if seen[key].resolve() == f.resolve():

@@ -208,3 +208,94 @@ def test_a_subscriber_that_raises_loses_nothing(setup, capsys):
     session.subscribe(lambda e: 1 / 0)
     assert session.run().counts["pass"] == 3
     assert "a session subscriber failed" in capsys.readouterr().err
+
+
+class AheadExecutor:
+    """An executor of its own (as a cluster's): it inspects every capture before handing any
+    back, returns them in reverse order without their context, and warns about the run."""
+
+    def __init__(self):
+        self.closed = False
+        self.handed = 0
+
+    def warnings(self):
+        return ["this executor works ahead"]
+
+    def execute(self, recipe, acquisitions, pm, *, reference, should_abort=None):
+        from inspector.runner import Outcome, inspect_acquisition
+
+        outcomes = [inspect_acquisition(a, recipe, reference, pm) for a in acquisitions]
+        try:
+            for o in reversed(outcomes):
+                self.handed += 1
+                yield Outcome(o.result, None, o.trace)
+        finally:
+            self.closed = True
+
+
+def _results(out):
+    import json
+
+    docs = {p.parent.name: json.loads(p.read_text()) for p in out.glob("*/result.json")}
+    return {name: ({k: v for k, v in d.items() if k != "timings_s"}, sorted(d["timings_s"])) for name, d in docs.items()}
+
+
+def _rows(out):
+    from inspector.history_store import read_history
+
+    varying = {"id", "uid", "inspected_at", "total_s", "chain"}
+    return sorted(({k: v for k, v in r.items() if k not in varying} for r in read_history(out)), key=lambda r: r["capture"])
+
+
+def test_a_custom_executor_s_outcomes_are_recorded_by_the_session_as_local_ones(setup, tmp_path):
+    from inspector.session import Warned
+
+    session, plugin, events, out = setup
+    local = session.run()
+    other = Session.open(tmp_path / "r.toml", tmp_path / "out2", pm=session.pm)
+    seen = []
+    other.subscribe(seen.append)
+    executor = AheadExecutor()
+    try:
+        summary = other.run(executor=executor)
+    finally:
+        other.close()
+    assert executor.closed
+    assert summary.counts == local.counts and summary.ended == "done" and summary.exit_status == 0
+    assert _results(tmp_path / "out2") == _results(out) and len(_results(out)) == 3
+    assert _rows(tmp_path / "out2") == _rows(out) and len(_rows(out)) == 3
+    # The same events, in the executor's order; its warning first, as a run warning.
+    assert seen[0] == Warned("run", "this executor works ahead") and isinstance(seen[1], RunStarted)
+    inspected = [e for e in seen if isinstance(e, Inspected)]
+    assert [(e.index, e.total, e.outcome.result.capture) for e in inspected] == [(1, 3, "part02"), (2, 3, "part01"), (3, 3, "part00")]
+    assert all(e.folder == tmp_path / "out2" / e.outcome.result.capture for e in inspected)
+    assert isinstance(seen[-1], RunEnded) and seen[-1].summary is summary
+    assert [type(e) for e in events] == [type(e) for e in seen[1:]]
+    assert [e[1:] for e in plugin.events if e[0] == "result"][-3:] == [("part02", "pass"), ("part01", "pass"), ("part00", "pass")]
+
+
+def test_a_run_that_ends_early_closes_its_executor_first(setup):
+    session, plugin, events, out = setup
+    executor = AheadExecutor()
+    closed_at_end = []
+
+    def interrupt(event):
+        if isinstance(event, Inspected):
+            raise KeyboardInterrupt  # Ctrl-C while the first result is printed
+        if isinstance(event, RunEnded):
+            closed_at_end.append(executor.closed)
+
+    session.subscribe(interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        session.run(executor=executor)
+    assert closed_at_end == [True] and executor.handed == 1  # its other work given up (a cluster's tasks cancelled)
+    assert [p.name for p in out.iterdir() if p.is_dir()] == ["part02"]
+
+
+def test_stop_ends_a_run_whose_executor_works_ahead_after_the_capture_in_progress(setup):
+    session, plugin, events, out = setup
+    session.subscribe(lambda e: session.stop() if isinstance(e, Inspected) else None)
+    executor = AheadExecutor()
+    summary = session.run(executor=executor)
+    assert summary.ended == "stopped" and summary.counts["pass"] == 1 and executor.closed
+    assert [p.name for p in out.iterdir() if p.is_dir()] == ["part02"]
