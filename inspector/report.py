@@ -4,6 +4,11 @@
 views, defects circled) next to ``result.json``; with ``--pdf`` it also writes
 ``report.pdf``, a one-page A4 inspection report (:func:`render_pdf`, also used by the GUI).
 Both read only the CONTRACT outputs, so they work on any result folder, later, elsewhere.
+
+Their texts are in the language of :mod:`inspector.locale` (``--lang``, else
+``$INSPECTOR_LANG``, else English; the GUI's language in the GUI): every text is marked
+``_("...")`` and every number goes through :func:`_fmt` (a decimal comma in German and
+Spanish). ``python -m inspector.locale.build`` collects the marked texts for translation.
 """
 
 from __future__ import annotations
@@ -18,13 +23,43 @@ from typing import Any
 
 import numpy as np
 
+from inspector.locale import _, list_separator, number, using
+
 __all__ = ["render_report", "render_pdf", "add_parser", "run"]
 
 #: Verdicts that come without pose, statistics or points.
 _UNFINISHED = ("error", "aborted")
 
-#: The three orthographic views: (horizontal axis, vertical axis, title), reference frame.
-_VIEWS = ((0, 1, "top (X-Y)"), (0, 2, "front (X-Z)"), (1, 2, "side (Y-Z)"))
+
+
+def _views() -> tuple[tuple[int, int, str], ...]:
+    """The three orthographic views: (horizontal axis, vertical axis, title), reference frame."""
+    return (0, 1, _("top (X-Y)")), (0, 2, _("front (X-Z)")), (1, 2, _("side (Y-Z)"))
+
+
+def _fmt(x: Any, spec: str) -> str:
+    """The number ``x`` written with the format spec ``spec`` in the report's language."""
+    return number(x, spec)
+
+
+def _band(lo: Any, hi: Any, spec: str = "+.3f") -> str:
+    """A tolerance band ``[lower, upper]`` (``[-0,100; +0,100]`` where the comma is the decimal sign)."""
+    return f"[{_num(lo, spec)}{list_separator()}{_num(hi, spec)}]"
+
+
+def _kind(kind: Any) -> str:
+    """A defect's kind in words (``missing``, ``excess``; another as it is written)."""
+    return {"missing": _("missing"), "excess": _("excess")}.get(str(kind), str(kind))
+
+
+def _defect_head(d: dict) -> str:
+    """What a defect is and where: "missing material in region 'default': worst -0.215 mm"."""
+    values = {"region": d["region"], "worst": _fmt(d["worst_mm"], "+.3f"), "kind": d["kind"]}
+    if d["kind"] == "missing":
+        return _("missing material in region '{region}': worst {worst} mm").format(**values)
+    if d["kind"] == "excess":
+        return _("excess material in region '{region}': worst {worst} mm").format(**values)
+    return _("{kind} material in region '{region}': worst {worst} mm").format(**values)
 
 
 def _tolerance(res: dict) -> dict:
@@ -69,9 +104,9 @@ def _draw_views(axes, res: dict, X: np.ndarray, dev: np.ndarray, *, labels: list
     order = np.argsort(np.abs(dev))  # out-of-tolerance points drawn last, on top
     defects = res.get("defects", [])
     if labels is None:
-        labels = [f"{d['kind']} {d['worst_mm']:+.2f}" for d in defects]
+        labels = [f"{_kind(d['kind'])} {_fmt(d['worst_mm'], '+.2f')}" for d in defects]
     sc = None
-    for ax, (a, b, name) in zip(axes, _VIEWS):
+    for ax, (a, b, name) in zip(axes, _views()):
         sc = ax.scatter(L[order, a], L[order, b], c=dev[order], s=1.5, cmap="coolwarm", norm=norm, linewidths=0,
                         rasterized=rasterized)
         for d, label in zip(defects, labels):
@@ -96,48 +131,59 @@ def _pyplot():
     return plt
 
 
-def render_report(folder: Path, out: Path | None = None) -> Path:
-    """Render ``deviation.png`` for the result folder ``folder``; returns its path."""
+def render_report(folder: Path, out: Path | None = None, *, lang: str | None = None) -> Path:
+    """Render ``deviation.png`` for the result folder ``folder``; returns its path.
+
+    ``lang``: the language of its texts (``en``, ``de``, ``es``; None: :mod:`inspector.locale`'s now)."""
+    with using(lang):
+        return _render_report(folder, out)
+
+
+def _render_report(folder: Path, out: Path | None) -> Path:
     plt = _pyplot()
     folder = Path(folder)
     res = _read_result(folder / "result.json")
     points = _result_points(folder, res)
     out = out or folder / "deviation.png"
     fig = plt.figure(figsize=(13, 4.8), dpi=110)
-    title = f"{res['capture']}  —  {res['verdict'].upper()}"
+    title = f"{res['capture']}  —  {_verdict(str(res['verdict']))[0]}"
     if points is None:
-        fig.text(0.5, 0.5, f"{title}\n{res.get('error') or 'no BCPS points'}", ha="center", va="center", fontsize=13)
+        why = res.get("error") or _("no BCPS points")
+        fig.text(0.5, 0.5, f"{title}\n{why}", ha="center", va="center", fontsize=13)
         fig.savefig(out)
         plt.close(fig)
         return out
     axes = [fig.add_subplot(1, 3, k + 1) for k in range(3)]
     sc = _draw_views(axes, res, *points)
     cb = fig.colorbar(sc, ax=fig.axes, shrink=0.85, pad=0.02)
-    cb.set_label("signed deviation, mm (negative: missing material)")
+    cb.set_label(_("signed deviation, mm (negative: missing material)"))
     tol = _tolerance(res)
     defects = res.get("defects", [])
     d = res["stats"].get("deviation_mm", {})
-    fig.suptitle(
-        f"{title}   mean {d.get('mean', 0):+.4f} mm, min {d.get('min', 0):+.3f}, max {d.get('max', 0):+.3f};"
-        f" tolerance [{tol['lower']:+.2f}, {tol['upper']:+.2f}] mm; {len(defects)} defect(s)",
-        fontsize=11,
-    )
+    summary = _("mean {mean} mm, min {min}, max {max}; tolerance {band} mm; {n} defect(s)").format(
+        mean=_fmt(d.get("mean", 0), "+.4f"), min=_fmt(d.get("min", 0), "+.3f"), max=_fmt(d.get("max", 0), "+.3f"),
+        band=_band(tol["lower"], tol["upper"], "+.2f"), n=len(defects))
+    fig.suptitle(f"{title}   {summary}", fontsize=11)
     for k, w in enumerate(res["stats"].get("warnings", [])):  # e.g. a tolerance the rig cannot resolve
-        fig.text(0.5, 0.02 + 0.035 * k, f"warning: {w}", ha="center", va="bottom", fontsize=9, color="#b00000")
+        fig.text(0.5, 0.02 + 0.035 * k, _("warning: {text}").format(text=w), ha="center", va="bottom", fontsize=9,
+                 color="#b00000")
     fig.savefig(out)
     plt.close(fig)
     return out
 
 
 # -- the one-page PDF report ---------------------------------------------------------------
-#: verdict -> (word, banner colour, text colour, what it means). The word is always printed:
-#: the colour only repeats it.
-_VERDICTS = {
-    "pass": ("PASS", "#2e7d32", "white", "part within tolerance"),
-    "fail": ("FAIL", "#c62828", "white", "part out of tolerance"),
-    "error": ("ERROR", "#f0a202", "black", "inspection not completed"),
-    "aborted": ("ABORTED", "#757575", "white", "inspection cancelled"),
-}
+def _verdict(verdict: str) -> tuple[str, str, str, str]:
+    """(word, banner colour, text colour, what it means) of a verdict. The word is always
+    printed: the colour only repeats it."""
+    known = {
+        "pass": (_("PASS"), "#2e7d32", "white", _("part within tolerance")),
+        "fail": (_("FAIL"), "#c62828", "white", _("part out of tolerance")),
+        "error": (_("ERROR"), "#f0a202", "black", _("inspection not completed")),
+        "aborted": (_("ABORTED"), "#757575", "white", _("inspection cancelled")),
+    }
+    return known.get(verdict, (verdict.upper(), "#757575", "white", _("unknown verdict")))
+
 
 _W, _H = 8.27, 11.69  # A4 portrait, inches
 _MARGIN = 0.55
@@ -223,11 +269,11 @@ def _line_h(fontsize: float, spacing: float = 1.3) -> float:
 
 
 def _num(x: Any, fmt: str, unit: str = "") -> str:
-    """``x`` formatted with ``fmt``, or an em dash when it is not a number."""
+    """``x`` formatted with ``fmt`` in the report's language, or an em dash when it is not a number."""
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
         return "—"
     try:
-        return f"{x:{fmt}}{unit}"
+        return f"{_fmt(x, fmt)}{unit}"
     except ValueError:  # e.g. a float where a count was expected
         return f"{x}{unit}"
 
@@ -238,7 +284,7 @@ def _dict(x: Any) -> dict:
 
 
 def render_pdf(folder: Path, out: Path | None = None, *, picture: Path | None = None,
-               recipe: Path | None = None) -> Path:
+               recipe: Path | None = None, lang: str | None = None) -> Path:
     """Write the one-page A4 inspection report of a result folder as a PDF.
 
     The page holds the verdict (word and colour), the capture, part id, inspection time and
@@ -259,6 +305,9 @@ def render_pdf(folder: Path, out: Path | None = None, *, picture: Path | None = 
     recipe : Path, optional
         The recipe file to show; default: the file ``result.json`` names
         (``recipe_path``, checked against ``recipe_sha256``).
+    lang : str, optional
+        The page's language: ``en``, ``de`` or ``es``; default: :mod:`inspector.locale`'s
+        current one (English, or what ``inspector report --lang`` or the GUI set).
 
     Returns
     -------
@@ -271,6 +320,11 @@ def render_pdf(folder: Path, out: Path | None = None, *, picture: Path | None = 
         ``result.json``, the points, ``picture`` or ``recipe`` is missing or unreadable;
         the message names the file.
     """
+    with using(lang):
+        return _render_pdf(Path(folder), out, picture, recipe)
+
+
+def _render_pdf(folder: Path, out: Path | None, picture: Path | None, recipe: Path | None) -> Path:
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -317,7 +371,8 @@ def render_pdf(folder: Path, out: Path | None = None, *, picture: Path | None = 
         tmp = out.with_name(out.name + ".part")
         try:
             fig.savefig(tmp, format="pdf", dpi=200, metadata={
-                "Title": f"Inspection report: {res['capture']} {res['verdict'].upper()}",
+                "Title": _("Inspection report: {capture} {verdict}").format(
+                    capture=res["capture"], verdict=_verdict(str(res["verdict"]))[0]),
                 "Subject": f"verdict {res['verdict']}", "Creator": "inspector report"})
             os.replace(tmp, out)
         finally:
@@ -333,20 +388,28 @@ def _inspection_time(res: dict, path: Path) -> tuple[str, str]:
         if meta.get(key):
             return " ".join(str(meta[key]).split()), ""
     t = datetime.fromtimestamp(path.stat().st_mtime, tz=timezone.utc).astimezone()
-    return t.isoformat(timespec="seconds"), "(result file time)"
+    return t.isoformat(timespec="seconds"), _("(result file time)")
 
 
 def _draw_banner(page: _Page, res: dict) -> None:
     """The verdict in words on its colour, and the capture's name."""
-    verdict = str(res["verdict"])
-    word, colour, ink, meaning = _VERDICTS.get(verdict, (verdict.upper(), "#757575", "white", "unknown verdict"))
+    word, colour, ink, meaning = _verdict(str(res["verdict"]))
     h = 0.85
     page.box(_MARGIN, page.y, _W - 2 * _MARGIN, h, facecolor=colour, edgecolor="none")
-    word = page.fit(word, 3.0, 32, weight="bold")
-    page.text(_MARGIN + 0.22, page.y + h / 2, word, fontsize=32, fontweight="bold", color=ink, va="center")
-    x = max(2.45, 0.22 + page.width(word, 32, weight="bold") + 0.3)  # the meaning, after the word
-    page.text(_MARGIN + x, page.y + h / 2, page.fit(meaning, 4.75 - x, 11), fontsize=11, color=ink, va="center")
-    page.text(_W - _MARGIN - 0.22, page.y + 0.2, "Inspection report", fontsize=9, color=ink, ha="right")
+    size = 32.0  # a long word (ABGEBROCHEN, INTERRUMPIDA) smaller, down to 22 points, then cut
+    while size > 22 and page.width(word, size, weight="bold") > 2.9:
+        size -= 1
+    word = page.fit(word, 2.9, size, weight="bold")
+    page.text(_MARGIN + 0.22, page.y + h / 2, word, fontsize=size, fontweight="bold", color=ink, va="center")
+    x = max(2.45, 0.22 + page.width(word, size, weight="bold") + 0.3)  # the meaning, after the word
+    for msize in (11.0, 10.0, 9.0):  # on at most two lines
+        lines = page.wrap(meaning, 4.75 - x, msize)
+        if len(lines) <= 2:
+            break
+    lines = lines[:1] + [page.fit(" ".join(lines[1:]), 4.75 - x, msize)] if len(lines) > 1 else lines
+    page.text(_MARGIN + x, page.y + h / 2, "\n".join(lines), fontsize=msize, color=ink, va="center", linespacing=1.15)
+    page.text(_W - _MARGIN - 0.22, page.y + 0.2, page.fit(_("Inspection report"), 2.1, 9), fontsize=9, color=ink,
+              ha="right")
     page.text(_W - _MARGIN - 0.22, page.y + 0.43, page.fit(res["capture"], 2.1, 12, weight="bold"), fontsize=12,
               fontweight="bold", color=ink, ha="right")
     page.y += h + 0.18
@@ -358,20 +421,22 @@ def _draw_identity(page: _Page, res: dict, folder: Path, when: tuple[str, str], 
     total = _dict(res.get("timings_s")).get("total")
     part = meta.get("part_id")
     rows = [
-        ("Capture", res["capture"], "Part id", "—" if part is None else part),
-        ("Inspected", when[0], "Cycle time", _num(total, ".2f", " s")),
-        ("Recipe", rec["name"], "Result folder", folder.resolve().name),
+        (_("Capture"), res["capture"], _("Part id"), "—" if part is None else part),
+        (_("Inspected"), when[0], _("Cycle time"), _num(total, ".2f", " s")),
+        (_("Recipe"), rec["name"], _("Result folder"), folder.resolve().name),
     ]
     lh = _line_h(9, 1.45)
+    # Each column's keys as wide as its widest (a translated one may be longer), 1.05 to 1.6 inches.
+    kw = [min(max(1.05, max(page.width(row[c], 9) for row in rows) + 0.12), 1.6) for c in (0, 2)]
     for k, (k1, v1, k2, v2) in enumerate(rows):
         y = page.y + k * lh
-        for x, width, key, value in ((_MARGIN, 3.1, k1, v1), (_MARGIN + 4.3, _W - 2 * _MARGIN - 5.35, k2, v2)):
-            weight = "bold" if key == "Capture" else "normal"
-            page.text(x, y, key, fontsize=9, color=_GREY)
-            page.text(x + 1.05, y, page.fit(value, width, 9, weight=weight), fontsize=9, fontweight=weight)
+        for c, (x, width, key, value) in enumerate(((_MARGIN, 3.1, k1, v1), (_MARGIN + 4.3, _W - 2 * _MARGIN - 5.35, k2, v2))):
+            weight = "bold" if (k, c) == (0, 0) else "normal"  # the capture
+            page.text(x, y, page.fit(key, kw[c] - 0.05, 9), fontsize=9, color=_GREY)
+            page.text(x + kw[c], y, page.fit(value, width + 1.05 - kw[c], 9, weight=weight), fontsize=9, fontweight=weight)
         if k == 1 and when[1]:  # where the time comes from, when it is not the capture's
-            x = _MARGIN + 1.05 + page.width(when[0], 9) + 0.08
-            page.text(x, y + 0.02, when[1], fontsize=7, color=_GREY)
+            x = kw[0] + page.width(when[0], 9) + 0.08
+            page.text(_MARGIN + x, y + 0.02, page.fit(when[1], 4.15 - x, 7), fontsize=7, color=_GREY)
     page.y += len(rows) * lh + 0.05
 
 
@@ -380,33 +445,39 @@ def _reason(res: dict, rec: dict) -> tuple[str, str]:
     verdict = res["verdict"]
     stats = _dict(res.get("stats"))
     if verdict in _UNFINISHED:
-        return ("Error" if verdict == "error" else "Aborted", str(res.get("error") or "no reason recorded"))
+        return (_("Error") if verdict == "error" else _("Aborted"), str(res.get("error") or _("no reason recorded")))
     tol = _dict(stats.get("tolerance_mm"))
     lo, hi = tol.get("lower"), tol.get("upper")
     defects = res.get("defects") or []
     if verdict == "fail" and defects:
         d = defects[0]  # the evaluate stage lists them worst first
-        band = (lo, hi) if d["region"] == "default" else _region_band(rec.get("text"), d["region"])
+        default = d["region"] == "default"
+        band = (lo, hi) if default else _region_band(rec.get("text"), d["region"])
         missing = d["kind"] == "missing" or d["worst_mm"] < 0
-        side, limit = ("below the lower", band[0]) if missing else ("above the upper", band[1])
+        values = {"limit": _num(band[0] if missing else band[1], "+.3f"), "band": _band(*band), "region": d["region"]}
         if band[0] is None:
-            broken = ("outside the tolerance (its band is not in this result)" if d["region"] == "default" else
-                      f"outside the tolerance of region '{d['region']}' (its band is not in the recipe shown)")
+            broken = (_("outside the tolerance (its band is not in this result)") if default else
+                      _("outside the tolerance of region '{region}' (its band is not in the recipe shown)"))
+        elif missing:
+            broken = (_("below the lower limit {limit} mm of the tolerance {band} mm") if default else
+                      _("below the lower limit {limit} mm of the region '{region}' tolerance {band} mm"))
         else:
-            scope = "" if d["region"] == "default" else f"region '{d['region']}' "
-            broken = (f"{side} limit {_num(limit, '+.3f')} mm of the {scope}tolerance "
-                      f"[{_num(band[0], '+.3f')}, {_num(band[1], '+.3f')}] mm")
-        others = f"; {len(defects) - 1} more defect(s) below" if len(defects) > 1 else ""
-        return ("Reason", f"{d['kind']} material in region '{d['region']}': worst {d['worst_mm']:+.3f} mm, "
-                          f"{broken} ({d['n_points']} points, defect #1){others}.")
+            broken = (_("above the upper limit {limit} mm of the tolerance {band} mm") if default else
+                      _("above the upper limit {limit} mm of the region '{region}' tolerance {band} mm"))
+        where = _("{n} points, defect #1").format(n=_fmt(d["n_points"], "d"))
+        others = _("; {n} more defect(s) below").format(n=len(defects) - 1) if len(defects) > 1 else ""
+        return (_("Reason"), f"{_defect_head(d)}, {broken.format(**values)} ({where}){others}.")
     within = stats.get("within_tolerance")
-    share = f"{_num(100 * within, '.2f', ' %') if isinstance(within, (int, float)) else '—'} of "
-    band_text = f"[{_num(lo, '+.3f')}, {_num(hi, '+.3f')}] mm"
+    share = _num(100 * within, ".2f", " %") if isinstance(within, (int, float)) else "—"
+    band_text = f"{_band(lo, hi)} mm"
     if verdict == "fail":
-        return ("Reason", f"out of tolerance ({stats.get('out_of_tolerance_points', '—')} points outside {band_text}); "
-                          "no defect cluster recorded.")
-    return ("Result", f"{share}{_num(stats.get('n_points'), ',d')} BCPS points within the tolerance {band_text}; "
-                      f"{len(defects) or 'no'} defect(s).")
+        outside = stats.get("out_of_tolerance_points", "—")
+        return (_("Reason"), _("out of tolerance ({n} points outside {band}); no defect cluster recorded.").format(
+            n=_num(outside, "d") if isinstance(outside, int) and not isinstance(outside, bool) else outside,
+            band=band_text))
+    found = _("{n} defect(s)").format(n=len(defects)) if defects else _("no defect(s)")
+    return (_("Result"), _("{share} of {n} BCPS points within the tolerance {band}; {defects}.").format(
+        share=share, n=_num(stats.get("n_points"), ",d"), band=band_text, defects=found))
 
 
 def _region_band(text: str | None, region: str) -> tuple[Any, Any]:
@@ -429,15 +500,15 @@ def _draw_reason(page: _Page, res: dict, rec: dict) -> None:
     lines = page.wrap(reason[1], width, 9)
     if len(lines) > 4:
         lines = lines[:3] + [page.fit(" ".join(lines[3:]), width, 9)]
-    page.text(_MARGIN, page.y, reason[0], fontsize=9, color=_GREY)
+    page.text(_MARGIN, page.y, page.fit(reason[0], 1.0, 9), fontsize=9, color=_GREY)
     for k, line in enumerate(lines):
         page.text(_MARGIN + 1.05, page.y + k * _line_h(9), line, fontsize=9, color=colour)
     page.y += len(lines) * _line_h(9)
     warnings = _dict(res.get("stats")).get("warnings") or []  # e.g. a tolerance the rig cannot resolve
     if not isinstance(warnings, list):
         warnings = [warnings]
-    shown = [f"warning: {w}" for w in warnings[:2]] + ([f"and {len(warnings) - 2} more warning(s) in result.json"]
-                                                       if len(warnings) > 2 else [])
+    shown = [_("warning: {text}").format(text=w) for w in warnings[:2]] + (
+        [_("and {n} more warning(s) in result.json").format(n=len(warnings) - 2)] if len(warnings) > 2 else [])
     for w in shown:
         lines = page.wrap(w, width, 8)
         for line in lines[:1] + ([page.fit(" ".join(lines[1:]), width, 8)] if len(lines) > 1 else []):
@@ -447,7 +518,7 @@ def _draw_reason(page: _Page, res: dict, rec: dict) -> None:
 
 def _draw_picture(page: _Page, res: dict, points, image, side: float, rows: int) -> None:
     """The given picture, else the three views (``side`` inches square) and their colour bar."""
-    page.heading("Deviation map")
+    page.heading(_("Deviation map"))
     w = _W - 2 * _MARGIN
     if image is not None:
         h = side + 0.85  # the room the three views and their colour bar would take
@@ -459,7 +530,7 @@ def _draw_picture(page: _Page, res: dict, points, image, side: float, rows: int)
     if points is None:
         h = 0.5
         page.box(_MARGIN, page.y, w, h, facecolor="#f2f2f2", edgecolor=_RULE, lw=0.6)
-        page.text(_W / 2, page.y + h / 2, "no deviation map: this inspection produced no BCPS points",
+        page.text(_W / 2, page.y + h / 2, page.fit(_("no deviation map: this inspection produced no BCPS points"), w - 0.2, 9),
                   ha="center", va="center", fontsize=9, color=_GREY)
         page.y += h + 0.05
         return
@@ -480,14 +551,14 @@ def _draw_picture(page: _Page, res: dict, points, image, side: float, rows: int)
     cax = page.axes(_MARGIN + 1.5 * w / 6, page.y + side + 0.62, w / 2, 0.09)
     cb = page.fig.colorbar(sc, cax=cax, orientation="horizontal")
     cb.ax.tick_params(labelsize=6, length=2)
-    cb.set_label("signed deviation, mm (negative: missing material); circles: defects, numbered as below",
-                 fontsize=7)
+    cb.set_label(page.fit(_("signed deviation, mm (negative: missing material); circles: defects, numbered as below"),
+                          w - 0.2, 7), fontsize=7)
     page.y += side + 1.05
 
 
 def _draw_stats(page: _Page, res: dict) -> None:
     """Deviation, alignment and size, and the time of each stage, in three columns."""
-    page.heading("Statistics")
+    page.heading(_("Statistics"))
     stats = _dict(res.get("stats"))
     dev = _dict(stats.get("deviation_mm"))
     tol = _dict(stats.get("tolerance_mm"))
@@ -495,73 +566,74 @@ def _draw_stats(page: _Page, res: dict) -> None:
     size = _dict(stats.get("size_fit"))
     within = stats.get("within_tolerance")
     shift = size.get("shift_mm")
+    stages = [(str(k), _num(v, ".3f", " s")) for k, v in _dict(res.get("timings_s")).items()
+              if k != "total" and not str(k).startswith("hook:")][:8]  # plugins' hook times are not stages
     columns = [
-        ("Deviation", [
-            ("BCPS points", _num(stats.get("n_points"), ",d")),
-            ("mean", _num(dev.get("mean"), "+.4f", " mm")),
-            ("min / max", f"{_num(dev.get('min'), '+.3f')} / {_num(dev.get('max'), '+.3f')} mm"),
-            ("p01 / p99", f"{_num(dev.get('p01'), '+.3f')} / {_num(dev.get('p99'), '+.3f')} mm"),
-            ("within tolerance", _num(100 * within, ".2f", " %") if isinstance(within, (int, float)) else "—"),
-            ("tolerance", f"[{_num(tol.get('lower'), '+.3f')}, {_num(tol.get('upper'), '+.3f')}] mm"),
+        (_("Deviation"), [
+            (_("BCPS points"), _num(stats.get("n_points"), ",d")),
+            (_("mean"), _num(dev.get("mean"), "+.4f", " mm")),
+            (_("min / max"), f"{_num(dev.get('min'), '+.3f')} / {_num(dev.get('max'), '+.3f')} mm"),
+            (_("p01 / p99"), f"{_num(dev.get('p01'), '+.3f')} / {_num(dev.get('p99'), '+.3f')} mm"),
+            (_("within tolerance"), _num(100 * within, ".2f", " %") if isinstance(within, (int, float)) else "—"),
+            (_("tolerance"), f"{_band(tol.get('lower'), tol.get('upper'))} mm"),
         ]),
-        ("Alignment and size", [
-            ("method", str(al.get("method", "—"))),
-            ("fitness", _num(al.get("fitness"), ".4f")),
-            ("RMSE", _num(al.get("rmse_mm"), ".4f", " mm")),
-            ("size scale", _num(size.get("scale"), ".5f") if size else "— (not fitted)"),
-            ("size inliers", _num(100 * size["inliers"], ".1f", " %")
+        (_("Alignment and size"), [
+            (_("method"), str(al.get("method", "—"))),
+            (_("fitness"), _num(al.get("fitness"), ".4f")),
+            (_("RMSE"), _num(al.get("rmse_mm"), ".4f", " mm")),
+            (_("size scale"), _num(size.get("scale"), ".5f") if size else _("— (not fitted)")),
+            (_("size inliers"), _num(100 * size["inliers"], ".1f", " %")
              if isinstance(size.get("inliers"), (int, float)) else "—"),
-            ("size shift", ", ".join(_num(v, "+.2f") for v in shift) + " mm"
+            (_("size shift"), list_separator().join(_num(v, "+.2f") for v in shift) + " mm"
              if isinstance(shift, list) and len(shift) == 3 else "—"),
         ]),
-        ("Cycle time per stage", [
-            (k, _num(v, ".3f", " s")) for k, v in _dict(res.get("timings_s")).items()
-            if k != "total" and not str(k).startswith("hook:")  # plugins' hook times are not stages
-        ][:8] + [("total", _num(_dict(res.get("timings_s")).get("total"), ".3f", " s"))]),
+        (_("Cycle time per stage"), stages + [(_("total"), _num(_dict(res.get("timings_s")).get("total"), ".3f", " s"))]),
     ]
     lh, colw = _line_h(8, 1.4), (_W - 2 * _MARGIN) / 3
     for c, (title, rows) in enumerate(columns):
         x = _MARGIN + c * colw
-        page.text(x, page.y, title, fontsize=8, fontweight="bold")
+        page.text(x, page.y, page.fit(title, colw - 0.2, 8, weight="bold"), fontsize=8, fontweight="bold")
         for k, (key, value) in enumerate(rows):
             y = page.y + (k + 1) * lh
-            bold = "bold" if key == "total" else "normal"
+            bold = "bold" if c == 2 and k == len(rows) - 1 else "normal"  # the total
             # The value first, leaving the key up to 0.9 inch; the key gets the rest.
             value = page.fit(value, colw - 0.3 - min(page.width(key, 8, weight=bold), 0.9), 8, weight=bold)
             key = page.fit(key, colw - 0.3 - page.width(value, 8, weight=bold), 8, weight=bold)
             page.text(x, y, key, color=_GREY, fontweight=bold)
             page.text(x + colw - 0.2, y, value, ha="right", fontweight=bold)
-    page.y += (1 + max(len(rows) for _, rows in columns)) * lh
+    page.y += (1 + max(len(rows) for __, rows in columns)) * lh
 
 
 def _draw_defects(page: _Page, res: dict, rows: int) -> None:
     """The defect table, worst first: at most ``rows`` rows, then a count of the others."""
     defects = res.get("defects") or []
-    page.heading(f"Defects ({len(defects)})")
+    page.heading(_("Defects ({n})").format(n=len(defects)))
     if not defects:
-        page.text(_MARGIN, page.y, "no defect", fontsize=8, color=_GREY)
+        page.text(_MARGIN, page.y, _("no defect"), fontsize=8, color=_GREY)
         page.y += _line_h(8)
         return
-    # (title, x of its anchor, alignment)
-    cols = (("#", 0.22, "right"), ("kind", 0.35, "left"), ("region", 1.05, "left"), ("points", 2.4, "right"),
-            ("worst, mm", 3.2, "right"), ("position x, y, z, mm", 5.25, "right"), ("extent, mm", 7.17, "right"))
+    # (title, x of its anchor, alignment, the most it may take, inches)
+    cols = (("#", 0.22, "right", 0.2), (_("kind"), 0.35, "left", 0.65), (_("region"), 1.05, "left", 0.85),
+            (_("points"), 2.4, "right", 0.5), (_("worst, mm"), 3.2, "right", 0.7),
+            (_("position x, y, z, mm"), 5.25, "right", 1.9), (_("extent, mm"), 7.17, "right", 1.8))
     lh = _DEFECT_ROW_H
-    for title, x, ha in cols:
-        page.text(_MARGIN + x, page.y, title, fontsize=7.5, fontweight="bold", ha=ha)
+    for title, x, ha, most in cols:
+        page.text(_MARGIN + x, page.y, page.fit(title, most, 7.5, weight="bold"), fontsize=7.5, fontweight="bold", ha=ha)
     page.rule(page.y + lh - 0.02, lw=0.4)
+    sep = list_separator()
     for i, d in enumerate(defects[:rows]):
         y = page.y + (i + 1) * lh + 0.02
         if i % 2:
             page.box(_MARGIN, y - 0.025, _W - 2 * _MARGIN, lh, facecolor="#f3f3f3", edgecolor="none")
-        cells = (str(i + 1), page.fit(d["kind"], 0.65, 7.5), page.fit(d["region"], 0.85, 7.5), f"{d['n_points']:,d}",
-                 f"{d['worst_mm']:+.3f}", ", ".join(f"{v:.1f}" for v in d["position"]),
-                 " × ".join(f"{v:.1f}" for v in d["extent"]))
-        for (_, x, ha), cell in zip(cols, cells):
+        cells = (str(i + 1), page.fit(_kind(d["kind"]), 0.65, 7.5), page.fit(d["region"], 0.85, 7.5),
+                 _fmt(d["n_points"], ",d"), _fmt(d["worst_mm"], "+.3f"), sep.join(_fmt(v, ".1f") for v in d["position"]),
+                 " × ".join(_fmt(v, ".1f") for v in d["extent"]))
+        for (__, x, ha, most), cell in zip(cols, cells):
             page.text(_MARGIN + x, y, cell, fontsize=7.5, ha=ha)
     n = min(len(defects), rows)
     page.y += (n + 1) * lh + 0.06
     if len(defects) > n:
-        page.text(_MARGIN + 0.35, page.y, f"and {len(defects) - n} more (result.json lists them all)",
+        page.text(_MARGIN + 0.35, page.y, _("and {n} more (result.json lists them all)").format(n=len(defects) - n),
                   fontsize=7.5, color=_GREY)
         page.y += lh
 
@@ -578,30 +650,33 @@ def _draw_characteristics(page: _Page, res: dict) -> None:
     if not chars:
         return
     nok = sum(c.get("verdict") == "nok" for c in chars)
-    page.heading(f"Characteristics ({len(chars)}, {nok} NOK)")
-    cols = (("id", 0.22, "right"), ("kind", 0.35, "left"), ("nominal", 2.0, "right"), ("measured", 2.85, "right"),
-            ("deviation", 3.7, "right"), ("limits", 4.75, "right"), ("U (k=2)", 5.5, "right"), ("verdict", 5.75, "left"))
+    page.heading(_("Characteristics ({n}, {nok} NOK)").format(n=len(chars), nok=nok))
+    # (title, x of its anchor, alignment, the most it may take, inches)
+    cols = ((_("id"), 0.22, "right", 0.3), (_("kind"), 0.35, "left", 1.3), (_("nominal"), 2.0, "right", 0.65),
+            (_("measured"), 2.85, "right", 0.8), (_("deviation"), 3.7, "right", 0.8), (_("limits"), 4.75, "right", 0.95),
+            (_("U (k=2)"), 5.5, "right", 0.7), (_("verdict"), 5.75, "left", 1.4))
     lh = _DEFECT_ROW_H
-    for title, x, ha in cols:
-        page.text(_MARGIN + x, page.y, title, fontsize=7.5, fontweight="bold", ha=ha)
+    for title, x, ha, most in cols:
+        page.text(_MARGIN + x, page.y, page.fit(title, most, 7.5, weight="bold"), fontsize=7.5, fontweight="bold", ha=ha)
     page.rule(page.y + lh - 0.02, lw=0.4)
     shown = chars[:_MAX_CHAR_ROWS]
     for i, c in enumerate(shown):
         y = page.y + (i + 1) * lh + 0.02
         if i % 2:
             page.box(_MARGIN, y - 0.025, _W - 2 * _MARGIN, lh, facecolor="#f3f3f3", edgecolor="none")
-        verdict = str(c.get("verdict", "")).replace("_", " ")
+        verdict = {"ok": _("OK"), "nok": _("NOK"), "not_measurable": _("NOT MEASURABLE")}.get(
+            str(c.get("verdict", "")), str(c.get("verdict", "")).replace("_", " ").upper())
         why = f": {c['reason']}" if c.get("verdict") == "not_measurable" and c.get("reason") else ""
         cells = (page.fit(str(c.get("id", "")), 0.4, 7.5), page.fit(str(c.get("kind", "")), 1.3, 7.5),
                  _num(c.get("nominal"), ".4f"), _num(c.get("measured"), ".4f"), _num(c.get("deviation"), "+.4f"),
                  f"{_num(c.get('lower'), '+.3f')} / {_num(c.get('upper'), '+.3f')}", _num(c.get("U"), ".4f"),
-                 page.fit(verdict.upper() + why, 1.2, 7.5))
+                 page.fit(verdict + why, 1.2, 7.5))
         color = "#b00020" if c.get("verdict") == "nok" else "black"
-        for (_, x, ha), cell in zip(cols, cells):
+        for (__, x, ha, most), cell in zip(cols, cells):
             page.text(_MARGIN + x, y, cell, fontsize=7.5, ha=ha, color=color)
     page.y += (len(shown) + 1) * lh + 0.06
     if len(chars) > len(shown):
-        page.text(_MARGIN + 0.35, page.y, f"and {len(chars) - len(shown)} more (result.json lists them all)",
+        page.text(_MARGIN + 0.35, page.y, _("and {n} more (result.json lists them all)").format(n=len(chars) - len(shown)),
                   fontsize=7.5, color=_GREY)
         page.y += lh
 
@@ -625,21 +700,21 @@ def _recipe_info(res: dict, recipe: Path | None) -> dict:
         info.update(path=str(recipe.resolve()), sha256=hashlib.sha256(data).hexdigest(),
                     text=data.decode("utf-8", "replace"))
         if recorded and recorded != info["sha256"]:
-            info["note"] = f"not the recipe this inspection recorded (SHA-256 {recorded})"
+            info["note"] = _("not the recipe this inspection recorded (SHA-256 {sha})").format(sha=recorded)
         return info
     named = res.get("recipe_path")
     if not isinstance(named, str) or not named:
-        info["note"] = "(recipe file not found)" if recorded else "recipe file not recorded in result.json"
+        info["note"] = _("(recipe file not found)") if recorded else _("recipe file not recorded in result.json")
         return info
     info["path"] = named
     try:
         data = Path(named).read_bytes()
     except OSError:
-        info["note"] = "(recipe file not found)"
+        info["note"] = _("(recipe file not found)")
         return info
     now = hashlib.sha256(data).hexdigest()
     if recorded and now != recorded:
-        info["note"] = f"the file has changed since the inspection (now SHA-256 {now}); its text is not shown"
+        info["note"] = _("the file has changed since the inspection (now SHA-256 {sha}); its text is not shown").format(sha=now)
         return info
     info.update(sha256=now, text=data.decode("utf-8", "replace"))
     return info
@@ -650,21 +725,22 @@ def _draw_recipe(page: _Page, rec: dict) -> float:
 
     Returns the height (inches) that was left for the text.
     """
-    page.heading("Recipe")
+    page.heading(_("Recipe"))
     lh = _line_h(8, 1.4)
-    rows = [("name", rec["name"]), ("file", rec["path"] or "—"), ("SHA-256", rec["sha256"] or "—")]
+    rows = [(_("name"), rec["name"]), (_("file"), rec["path"] or "—"), (_("SHA-256"), rec["sha256"] or "—")]
     width = _W - 2 * _MARGIN - 1.05
     for k, (key, value) in enumerate(rows):
-        page.text(_MARGIN, page.y + k * lh, key, color=_GREY)
-        if key == "SHA-256" and rec["sha256"]:
+        page.text(_MARGIN, page.y + k * lh, page.fit(key, 1.0, 8), color=_GREY)
+        if k == 2 and rec["sha256"]:
             mono = {"family": "DejaVu Sans Mono"}
             page.text(_MARGIN + 1.05, page.y + k * lh, page.fit(value, width, 7.5, **mono), fontsize=7.5, **mono)
         else:
             page.text(_MARGIN + 1.05, page.y + k * lh, page.fit(value, width, 8))
     page.y += len(rows) * lh
     if rec["note"]:
-        page.text(_MARGIN + 1.05, page.y, page.fit(rec["note"], width, 8), color="#b00000")
-        page.y += lh
+        for line in page.wrap(rec["note"], width, 8)[:2]:  # a long note (a hash in a translated sentence) on two lines
+            page.text(_MARGIN + 1.05, page.y, page.fit(line, width, 8), color="#b00000")
+            page.y += lh
     text = rec["text"]
     bottom = _H - _MARGIN - 0.3  # above the footer
     room = bottom - page.y
@@ -681,12 +757,12 @@ def _draw_recipe(page: _Page, rec: dict) -> float:
         """(lines shown, characters shown, columns, lines) when set in ``ncols`` columns."""
         width = int(((_W - 2 * _MARGIN) / ncols - 0.2) / cw)
         fit = per_col * ncols
-        shown = lines if len(lines) <= fit else lines[: fit - 1] + [f"… {len(lines) - fit + 1} more line(s)"]
+        shown = lines if len(lines) <= fit else lines[: fit - 1] + [_("… {n} more line(s)").format(n=len(lines) - fit + 1)]
         cut = [ln if len(ln) <= width else ln[: width - 1] + "…" for ln in shown]
         kept = cut[: min(len(lines), fit if len(lines) <= fit else fit - 1)]
         return len(kept), sum(len(ln) for ln in kept), ncols, cut
 
-    _, _, ncols, cut = max(layout(n) for n in (1, 2, 3))  # every line first, then the most text
+    __, ___, ncols, cut = max(layout(n) for n in (1, 2, 3))  # every line first, then the most text
     colw = (_W - 2 * _MARGIN) / ncols
     for c in range(ncols):
         chunk = cut[c * per_col:(c + 1) * per_col]
@@ -704,9 +780,10 @@ def _draw_footer(page: _Page, folder: Path) -> None:
     now = datetime.now(timezone.utc).astimezone().isoformat(timespec="seconds")
     y = _H - _MARGIN - 0.12
     page.rule(y - 0.06)
-    page.text(_MARGIN, y, page.fit(f"inspector {__version__} · report generated {now} · {folder.resolve()}",
-                                   _W - 2 * _MARGIN - 0.8, 6.5), fontsize=6.5, color=_GREY)
-    page.text(_W - _MARGIN, y, "page 1 of 1", fontsize=6.5, color=_GREY, ha="right")
+    made = _("inspector {version} · report generated {time} · {folder}").format(version=__version__, time=now,
+                                                                                 folder=folder.resolve())
+    page.text(_MARGIN, y, page.fit(made, _W - 2 * _MARGIN - 0.8, 6.5), fontsize=6.5, color=_GREY)
+    page.text(_W - _MARGIN, y, page.fit(_("page 1 of 1"), 0.75, 6.5), fontsize=6.5, color=_GREY, ha="right")
 
 
 # -- reading a result folder -----------------------------------------------------------------
@@ -820,9 +897,24 @@ def add_parser(subparsers) -> None:
     p.add_argument("--pdf", action="store_true", help="also write report.pdf, a one-page A4 inspection report")
     p.add_argument("--recipe", metavar="RECIPE", type=Path,
                    help="recipe file shown in report.pdf (default: the one result.json names)")
+    p.add_argument("--lang", metavar="LANG",
+                   help="language of report.pdf and deviation.png: en, de or es (default: $INSPECTOR_LANG, else en; "
+                        "never the system locale: the command's own lines stay English, plant scripts parse them)")
 
 
 def run(args) -> int:
+    from inspector.locale import choose
+
+    try:
+        lang = choose(getattr(args, "lang", None))
+    except ValueError as e:
+        print(f"inspector: error: {e}", file=sys.stderr, flush=True)
+        return 2
+    with using(lang):
+        return _run(args)
+
+
+def _run(args) -> int:
     from inspector.errors import InputError
 
     folders: list[Path] = []

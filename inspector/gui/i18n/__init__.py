@@ -51,11 +51,14 @@ def choose(requested: str | None, system: str | None = None) -> str:
 def install(lang: str) -> str:
     """Install the translators of ``lang`` (and remove those installed before) in the running
     QApplication, make its locale the default for numbers and dates, and point the Qt-free
-    modules' ``translate`` at Qt's. Returns the language installed ("en": none needed)."""
+    modules' ``translate`` at Qt's, and make it the language of the headless texts too
+    (:func:`inspector.locale.set_language`: the PDF report). Returns the language installed
+    ("en": none needed)."""
     from PySide6.QtCore import QCoreApplication, QLibraryInfo, QLocale, QTranslator
 
     from inspector import shift
     from inspector.gui import viewmodel
+    from inspector.locale import set_language
 
     app = QCoreApplication.instance()
     assert app is not None, "create the QApplication first"
@@ -77,6 +80,7 @@ def install(lang: str) -> str:
             _INSTALLED.append(qt)
     viewmodel.set_text(QCoreApplication.translate, number)
     shift.set_translator(QCoreApplication.translate)
+    set_language(lang if lang in LANGUAGES else "en")  # the PDF export (Ctrl+E), Qt-free: inspector.locale
     return lang
 
 
