@@ -43,36 +43,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
 
-import measure as ms  # noqa: E402
+from calibration_common import Measurer, inspector_exe, relax_watchdog, simulate_parts  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[2]
 TOLERANCE_PX = 0.01
-
-
-def _inspector() -> str:
-    for cand in (Path(sys.executable).parent / "inspector", ROOT / ".venv" / "bin" / "inspector"):
-        if cand.exists():
-            return str(cand)
-    return "inspector"
-
-
-def simulate(folder: Path, part: str, count: int, seed: int) -> list[Path]:
-    """``count`` good parts in ``folder`` (reused when already there)."""
-    from inspector.capture_folder import save_capture
-    from inspector_drivers.sim.simulate import SimParams, sim_rig
-    from inspector_drivers.sim.simulate import simulate as render
-
-    p = SimParams(part=part, count=count, seed=seed)
-    rig = sim_rig(p)
-    out = []
-    for i in range(count):
-        target = folder / f"{part}-s{seed + i:04d}"
-        if not (target / "truth" / "part.ply").is_file():
-            t = time.perf_counter()
-            save_capture(render(p, i, rig), target, overwrite=True)
-            print(f"simulated {target.name} ({time.perf_counter() - t:.1f} s)", flush=True)
-        out.append(target)
-    return out
 
 
 def perturbed(rig: Any, rng: np.random.Generator, sigma_px: float = 0.0, knock: int | None = None,
@@ -105,47 +78,6 @@ def reprojection_px(rig: Any, exact: Any, half_mm: float = 20.0) -> np.ndarray:
                      for a, b in zip(rig.cameras, exact.cameras)])
 
 
-class Measurer:
-    """Inspect the evaluation captures with a rig; BCPS points against the true surfaces."""
-
-    def __init__(self, folders: list[Path], part: str) -> None:
-        import trimesh
-
-        from inspector.manager import create_plugin_manager
-        from inspector.recipe import load_recipe
-        from inspector.reference import Reference
-        from inspector.resources import recipe_path
-
-        self.folders = folders
-        self.pm = create_plugin_manager()
-        self.recipe = load_recipe(recipe_path("default.toml"), self.pm, reference=f"builtin:{part}")
-        self.ref = Reference.load(self.recipe.reference)
-        self.truth = []
-        for f in folders:
-            m = trimesh.load(f / "truth" / "part.ply", force="mesh", process=False)
-            self.truth.append((np.asarray(m.vertices, float), np.asarray(m.faces, np.int64)))
-
-    def __call__(self, rig: Any, label: str) -> dict[str, Any]:
-        from inspector.calibration.refine import inspect_with_rig
-
-        done = inspect_with_rig(self.folders, rig, self.recipe, self.ref, self.pm, label=f"inspect ({label})",
-                                progress=lambda line: print(line, flush=True))
-        fp = 0.1  # the simulated rig's footprint at its centre, mm
-        rows = []
-        for d, (V, F) in zip(done, self.truth):
-            if d.points is None or not len(d.points):
-                rows.append({"capture": d.name, "verdict": d.verdict, "mean_px": None, "p99_px": None})
-                continue
-            dist, _ = ms.distances_to_mesh(d.points, V, F)
-            rows.append({"capture": d.name, "verdict": d.verdict, "mean_px": float(dist.mean() / fp),
-                         "p99_px": float(np.percentile(dist, 99) / fp), "n": int(len(dist))})
-        means = [r["mean_px"] for r in rows if r["mean_px"] is not None]
-        p99 = [r["p99_px"] for r in rows if r["p99_px"] is not None]
-        return {"rows": rows, "mean_px": float(np.mean(means)) if means else None,
-                "p99_px": float(np.mean(p99)) if p99 else None,
-                "verdicts": [r["verdict"] for r in rows]}
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--work", type=Path, default=Path("/tmp/inspector-refine-acceptance"))
@@ -165,18 +97,12 @@ def main(argv: list[str] | None = None) -> int:
     from inspector.calibration.command import write_rig
     from inspector_drivers.sim.simulate import SimParams, sim_rig
 
-    # accuracy, not speed, is measured here: on a loaded machine a slow stage must not become an
-    # error by the watchdog's limits (the recipe's [budget], read when the recipe is loaded; the
-    # refine command inherits them)
-    import os
-
-    os.environ.setdefault("INSPECTOR_STAGE_LIMIT_S", "3600")
-    os.environ.setdefault("INSPECTOR_INSPECTION_LIMIT_S", "7200")
+    relax_watchdog()
     work = args.work
     work.mkdir(parents=True, exist_ok=True)
     refine_dir, eval_dir = work / "refine", work / "eval"
-    simulate(refine_dir, args.part, args.refine_count, args.refine_seed)
-    eval_folders = simulate(eval_dir, args.part, args.eval_count, args.eval_seed)
+    simulate_parts(refine_dir, args.part, args.refine_count, args.refine_seed)
+    eval_folders = simulate_parts(eval_dir, args.part, args.eval_count, args.eval_seed)
     exact = sim_rig(SimParams(part=args.part))
     rng = np.random.default_rng(args.perturb_seed)
     cases = [
@@ -191,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         folder.mkdir(exist_ok=True)
         bad = write_rig(rig, folder / "perturbed.json")
         refined_path = folder / "refined.json"
-        cmd = [_inspector(), "calibrate", "--refine", str(bad), "--captures", str(refine_dir), "--reference",
+        cmd = [inspector_exe(), "calibrate", "--refine", str(bad), "--captures", str(refine_dir), "--reference",
                f"builtin:{args.part}", "--out", str(refined_path), "--force", "--json"]
         if args.intrinsics:
             cmd.append("--intrinsics")
