@@ -110,7 +110,7 @@ async def play(args: argparse.Namespace) -> int:
                 await obj.call_method(ua.QualifiedName("StartSingleJob", idx), ua.Variant(part_id, ua.VariantType.String))
             else:
                 await client.write_values([node("PartId"), node("Trigger")], [part_id, True])
-            counter = await wait_until(node("ResultCounter").read_value, lambda c: c != before,   # 4
+            counter = await wait_until(node("ResultCounter").read_value, lambda c, before=before: c != before,   # 4
                                        args.timeout, poll, f"result for {part_id}")
             seen_s = time.perf_counter() - t0
             names = ("Verdict", "ResultPartId", "DefectCount", "WorstDeviation", "CycleTime", "ErrorText")  # 5
@@ -143,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     except ua.UaStatusCodeError as e:
         print(f"plc_client: refused: {type(e).__name__} ({e})", file=sys.stderr)
         return 2
-    except (OSError, TimeoutError, asyncio.TimeoutError) as e:
+    except (OSError, TimeoutError) as e:
         print(f"plc_client: {args.url}: {e or type(e).__name__}", file=sys.stderr)
         return 2
 

@@ -26,7 +26,7 @@ import os
 import sqlite3
 import sys
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -155,7 +155,7 @@ def approve(recipe: Recipe, who: str | None, *, config_dir: str | os.PathLike[st
     assert recipe.path is not None
     here = str(Path(recipe.path).resolve())
     entry = Approval(digest, here, recipe.name, file_sha, ref, who,
-                     datetime.now(timezone.utc).isoformat(timespec="milliseconds"))
+                     datetime.now(UTC).isoformat(timespec="milliseconds"))
     rows = [r for r in _read(config_dir) if r.get("recipe") != here]
     rows.append(dict(entry.__dict__))
     roles._write_atomic(approvals_file(config_dir), {"version": 1, "approvals": rows})

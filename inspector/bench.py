@@ -867,7 +867,7 @@ def dask_throughput(args: argparse.Namespace) -> int:
         result, _ = inspect_folder(setup, str(distinct[0]))  # warm, in this process
         doc["result_bytes"] = len(pickle.dumps(result, protocol=pickle.HIGHEST_PROTOCOL))
         rec = []
-        for i in range(5):
+        for _ in range(5):
             t0 = time.perf_counter()
             record_outcome(Outcome(result, None), session.recipe, session.pm, work / "out-record")
             rec.append(time.perf_counter() - t0)

@@ -597,7 +597,7 @@ def execute(
     return rows
 
 
-class _progress_bar:  # noqa: N801 - used like a function
+class _progress_bar:
     """tqdm on stderr, or one plain line per task when tqdm is missing."""
 
     def __init__(self, total: int, enabled: bool, desc: str = "experiment") -> None:

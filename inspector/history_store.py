@@ -22,7 +22,7 @@ import socket
 import sqlite3
 import uuid
 from collections.abc import Mapping
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
@@ -194,7 +194,7 @@ def _record(con: sqlite3.Connection, result: InspectionResult, *, now: datetime 
     worst = max((d.worst_mm for d in result.defects), key=abs, default=None)
     tol = summary.tolerance_mm if summary is not None else (None, None)
     row = (
-        (now or datetime.now(timezone.utc)).isoformat(timespec="milliseconds"),
+        (now or datetime.now(UTC)).isoformat(timespec="milliseconds"),
         result.capture,
         None if meta.get("part_id") is None else str(meta["part_id"]),
         None if meta.get("timestamp") is None else str(meta["timestamp"]),

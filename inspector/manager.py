@@ -326,7 +326,7 @@ class PluginManager:
             reason = "; ".join(_unknown_hook(n) for n in unknown) or "a hook without hookspec"
             if info.from_code:
                 if info.file:
-                    raise PluginError(f"{info.label()}: {reason}")
+                    raise PluginError(f"{info.label()}: {reason}") from None
                 raise pluggy.PluginValidationError(plugin, f"{info.label()}: {reason}") from None
             self._problem(PluginProblem(info, reason, provides=_probe(plugin)))
             return
@@ -417,7 +417,7 @@ class PluginManager:
                             impl.function(**{a: reg for a in impl.argnames if a == "registry"})
                         finally:
                             tried += [f"{kind} {n}" for n in reg.attempted]
-            except Exception as e:  # noqa: BLE001 - one plugin must never stop the others
+            except Exception as e:
                 info = self.info(name)
                 reason = _one_line(e) if isinstance(e, PluginError) else f"{hook} raised {_exc(e)}"
                 if info.from_code:

@@ -57,8 +57,8 @@ def param(
     default: Any,
     doc: str,
     *,
-    min: float | None = None,  # noqa: A002 - reads naturally at the call site
-    max: float | None = None,  # noqa: A002
+    min: float | None = None,
+    max: float | None = None,
 ) -> Any:
     """Declare one parameter: default value, one-line doc, optional numeric bounds."""
     kwargs: dict[str, Any] = {"metadata": {"doc": doc, "min": min, "max": max}}

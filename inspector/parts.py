@@ -266,7 +266,7 @@ def part_names() -> list[str]:
     return sorted(BUILTIN_PARTS)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _build(name: str) -> trimesh.Trimesh:
     mesh = _BUILDERS[name]()
     _centre(mesh)
@@ -591,7 +591,7 @@ def _read_mesh(path: Path, where: str) -> trimesh.Trimesh:
         if not isinstance(loaded, trimesh.Trimesh):
             raise ValueError(f"got a {type(loaded).__name__}, not a triangle mesh")
         return loaded
-    except Exception as exc:  # any parser failure is the file's fault
+    except Exception as exc:  # noqa: BLE001 - any parser failure is the file's fault
         raise ReferenceMeshError(f"{where}: cannot read ({type(exc).__name__}: {_short(exc)})") from None
 
 
@@ -631,5 +631,5 @@ def _validate_mesh(mesh: trimesh.Trimesh, path: Path, where: str, recentre: bool
         return mesh
     except ReferenceMeshError:
         raise
-    except Exception as exc:
+    except Exception as exc:  # noqa: BLE001 - trimesh's checks raise what they raise: the mesh's fault
         raise ReferenceMeshError(f"{where}: invalid mesh ({type(exc).__name__}: {_short(exc)})") from None

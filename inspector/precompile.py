@@ -182,7 +182,7 @@ def _argument_types(args: str) -> tuple[Any, ...]:
 
     names = {k: v for k, v in vars(types).items() if not k.startswith("_")}
     names["bool"] = types.boolean
-    value = eval(args, {"__builtins__": {}}, names)  # noqa: S307 - our own file, numba type names only
+    value = eval(args, {"__builtins__": {}}, names)
     return tuple(value)
 
 

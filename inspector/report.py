@@ -17,7 +17,7 @@ import hashlib
 import json
 import os
 import sys
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
@@ -387,7 +387,7 @@ def _inspection_time(res: dict, path: Path) -> tuple[str, str]:
     for key in ("timestamp", "triggered_at"):
         if meta.get(key):
             return " ".join(str(meta[key]).split()), ""
-    t = datetime.fromtimestamp(path.stat().st_mtime, tz=timezone.utc).astimezone()
+    t = datetime.fromtimestamp(path.stat().st_mtime, tz=UTC).astimezone()
     return t.isoformat(timespec="seconds"), _("(result file time)")
 
 
@@ -628,7 +628,7 @@ def _draw_defects(page: _Page, res: dict, rows: int) -> None:
         cells = (str(i + 1), page.fit(_kind(d["kind"]), 0.65, 7.5), page.fit(d["region"], 0.85, 7.5),
                  _fmt(d["n_points"], ",d"), _fmt(d["worst_mm"], "+.3f"), sep.join(_fmt(v, ".1f") for v in d["position"]),
                  " × ".join(_fmt(v, ".1f") for v in d["extent"]))
-        for (__, x, ha, most), cell in zip(cols, cells):
+        for (__, x, ha, _most), cell in zip(cols, cells):
             page.text(_MARGIN + x, y, cell, fontsize=7.5, ha=ha)
     n = min(len(defects), rows)
     page.y += (n + 1) * lh + 0.06
@@ -672,7 +672,7 @@ def _draw_characteristics(page: _Page, res: dict) -> None:
                  f"{_num(c.get('lower'), '+.3f')} / {_num(c.get('upper'), '+.3f')}", _num(c.get("U"), ".4f"),
                  page.fit(verdict + why, 1.2, 7.5))
         color = "#b00020" if c.get("verdict") == "nok" else "black"
-        for (__, x, ha, most), cell in zip(cols, cells):
+        for (__, x, ha, _most), cell in zip(cols, cells):
             page.text(_MARGIN + x, y, cell, fontsize=7.5, ha=ha, color=color)
     page.y += (len(shown) + 1) * lh + 0.06
     if len(chars) > len(shown):
@@ -777,7 +777,7 @@ def _draw_footer(page: _Page, folder: Path) -> None:
     """Who made the page, when, from which folder; the page number."""
     from inspector import __version__
 
-    now = datetime.now(timezone.utc).astimezone().isoformat(timespec="seconds")
+    now = datetime.now(UTC).astimezone().isoformat(timespec="seconds")
     y = _H - _MARGIN - 0.12
     page.rule(y - 0.06)
     made = _("inspector {version} · report generated {time} · {folder}").format(version=__version__, time=now,

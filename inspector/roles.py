@@ -48,7 +48,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
@@ -298,7 +298,7 @@ def check_password(password: str, *, config_dir: str | os.PathLike[str] | None =
 
 
 def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 def _history_path(outdir: str | os.PathLike[str]) -> Path:
@@ -377,7 +377,7 @@ def _append_audit(path: Path, action: str, *, who: str | None, role_before: str 
         raise ValueError(f"unknown audit action {action!r} (expected one of {', '.join(AUDIT_ACTIONS)})")
     path.parent.mkdir(parents=True, exist_ok=True)
     row = (
-        (at or datetime.now(timezone.utc)).astimezone(timezone.utc).isoformat(timespec="milliseconds"),
+        (at or datetime.now(UTC)).astimezone(UTC).isoformat(timespec="milliseconds"),
         who, action, role_before, role_after, recipe_before, recipe_after, hash_before, hash_after,
     )
     con = sqlite3.connect(str(path), timeout=10.0)

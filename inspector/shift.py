@@ -35,7 +35,7 @@ import sys
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, time, timedelta, timezone, tzinfo
+from datetime import datetime, time, timedelta, tzinfo, UTC
 from pathlib import Path
 from typing import Any
 
@@ -231,7 +231,7 @@ def shift_settings(path: str | Path | None) -> ShiftSettings:
 def shift_at(t: datetime, settings: ShiftSettings) -> Shift:
     """The shift that holds the instant ``t`` (aware; a naive one is taken as UTC)."""
     if t.tzinfo is None:
-        t = t.replace(tzinfo=timezone.utc)
+        t = t.replace(tzinfo=UTC)
     zone = settings.zone()
     local = t.astimezone(zone)
     times = settings.times()
@@ -260,7 +260,7 @@ def _parse_utc(text: str) -> datetime | None:
         t = datetime.fromisoformat(text)
     except (TypeError, ValueError):
         return None
-    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t
+    return t.replace(tzinfo=UTC) if t.tzinfo is None else t
 
 
 def read_shift_rows(path: Path, start: datetime, end: datetime
@@ -274,8 +274,8 @@ def read_shift_rows(path: Path, start: datetime, end: datetime
         raise InputError(f"{path}: no history (inspector run writes it beside the result folders)")
     # The stored text is UTC ISO-8601 (lexically ordered); a day's margin for any other
     # offset a foreign writer used, the exact interval is then checked on the parsed time.
-    lo = (start.astimezone(timezone.utc) - timedelta(days=1)).isoformat()
-    hi = (end.astimezone(timezone.utc) + timedelta(days=1)).isoformat()
+    lo = (start.astimezone(UTC) - timedelta(days=1)).isoformat()
+    hi = (end.astimezone(UTC) + timedelta(days=1)).isoformat()
     try:
         con = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=10.0)
         try:
@@ -410,7 +410,7 @@ def shift_counters(history: str | Path, settings: ShiftSettings | None = None, *
     path = Path(history)
     if path.is_dir() or path.suffix != ".sqlite":  # an OUTDIR (one that does not exist too)
         path = path / HISTORY_FILE
-    now = now or datetime.now(timezone.utc)
+    now = now or datetime.now(UTC)
     spans = shifts_until(now, settings, max(1, shifts))
     rows, defects = read_shift_rows(path, spans[0].start, spans[-1].end)
     out = []

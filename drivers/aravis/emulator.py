@@ -190,7 +190,7 @@ class EmulatedRig:
         err: Any = subprocess.DEVNULL
         if self.log_dir is not None:
             self.log_dir.mkdir(parents=True, exist_ok=True)
-            err = open(self.log_dir / f"cam{i:02d}.log", "ab")  # noqa: SIM115 - owned by the child
+            err = open(self.log_dir / f"cam{i:02d}.log", "ab")
         try:
             self.procs[i] = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=err)
         finally:

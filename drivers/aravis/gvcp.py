@@ -98,7 +98,7 @@ def discover(
                 s.settimeout(left)
                 try:
                     data, peer = s.recvfrom(2048)
-                except (TimeoutError, socket.timeout):
+                except TimeoutError:
                     break
                 except OSError:  # ICMP port unreachable: nobody there
                     return None

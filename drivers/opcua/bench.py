@@ -67,7 +67,7 @@ def _recipe(args: argparse.Namespace) -> str:
     from inspector import bench
     from inspector.resources import recipe_path
 
-    if args.recipe == str(bench._recipes_dir() / "default.toml"):  # noqa: SLF001 - the bench's own default
+    if args.recipe == str(bench._recipes_dir() / "default.toml"):
         return str(recipe_path("demo.toml"))
     return str(args.recipe)
 

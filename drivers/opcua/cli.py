@@ -128,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
             except (NotImplementedError, RuntimeError):  # not the main thread, or not POSIX
                 pass
         await server.start()
-        writer = server._creds.user if server._creds is not None else None  # noqa: SLF001 - our own module
+        writer = server._creds.user if server._creds is not None else None
         who = f"user {writer!r}" if writer else "nobody"
         if settings.anonymous_write:
             who += " and anonymous clients"

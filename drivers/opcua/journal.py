@@ -134,7 +134,7 @@ def lock_outdir(outdir: Path) -> Any:
         import fcntl
     except ImportError:  # not POSIX
         return None
-    f = open(Path(outdir) / LOCK_FILE, "a+")  # noqa: SIM115 - held open for the server's life
+    f = open(Path(outdir) / LOCK_FILE, "a+")
     try:
         fcntl.flock(f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:

@@ -49,7 +49,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
@@ -97,7 +97,7 @@ def part_id_problem(part_id: str) -> str | None:
 
 
 def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 def _one_line(text: object) -> str:
@@ -353,7 +353,7 @@ class InspectorServer:
         if self._task is not None:
             try:
                 await asyncio.wait_for(asyncio.shield(self._task), 60)
-            except (asyncio.TimeoutError, Exception):  # noqa: BLE001 - stopping anyway
+            except (TimeoutError, Exception):  # noqa: BLE001 - stopping anyway
                 pass
         if self._server is not None:
             await self._server.stop()
@@ -369,7 +369,7 @@ class InspectorServer:
         """Write variable ``name`` (server side: no permission check, subscribers notified)."""
         assert self._server is not None
         v = model.variable(name)
-        now = datetime.now(timezone.utc)
+        now = datetime.now(UTC)
         dv = ua.DataValue(ua.Variant(value, _VT[v.type]), SourceTimestamp=now, ServerTimestamp=now)
         await self._server.write_attribute_value(self._nodes[name].nodeid, dv)
 

@@ -744,7 +744,7 @@ def _fs_read(path: Path) -> dict[str, Any]:
                 elif all(v.isSeq() for v in vals):
                     try:
                         out[key] = np.array([[v.at(j).real() for j in range(v.size())] for v in vals], float)
-                    except Exception:  # ragged
+                    except Exception:  # noqa: BLE001 - ragged or not numbers: the key is left out
                         pass
             elif node.isReal() or node.isInt():
                 out[key] = float(node.real())

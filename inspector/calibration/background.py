@@ -45,7 +45,7 @@ import os
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
@@ -258,7 +258,7 @@ def run_background(args: argparse.Namespace) -> int:
         tmp.write_bytes(buf.tobytes())
         os.replace(tmp, p)
     summary: dict[str, Any] = {
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "captures": str(root),
         "frames": len(folders),
         "folder": str(bg_dir),

@@ -61,7 +61,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
@@ -875,7 +875,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
                     for j, (n, (w, h)) in enumerate(zip(cal.names, cal.sizes)))
     summary = rep.summarise(cal)
     extra = {"calibration": {
-        "date": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "date": datetime.now(UTC).isoformat(timespec="seconds"),
         "target": {**target.to_json(), "file": Path(args.target).name},
         "captures": str(root),
         "poses": len(cal.poses),

@@ -226,8 +226,8 @@ class _Harness:
         # run_finished comes once the last result is drawn everywhere.
         self._wait(lambda: self.finished_at is not None)
         if self.view is None:
-            rec["error"] = ("no result within %.0f s" % INSPECTION_TIMEOUT_S) if self.timed_out else \
-                "the run ended without a result (%s)" % (self.window.progress_label.text() or "no reason shown")
+            rec["error"] = (f"no result within {INSPECTION_TIMEOUT_S:.0f} s") if self.timed_out else \
+                f"the run ended without a result ({self.window.progress_label.text() or 'no reason shown'})"
         t_end = self._settle() if not self.timed_out else time.perf_counter()
         ticks = [t for t in self.ticks if t <= t_end] + [t_end]
         gaps = [(a, b) for a, b in zip(ticks, ticks[1:])]
@@ -249,7 +249,7 @@ class _Harness:
             "gaps_ms": array("d", (1000.0 * (b - a) for a, b in gaps)),
         })
         if self.timed_out and "error" not in rec:
-            rec["error"] = "the run did not end within %.0f s" % INSPECTION_TIMEOUT_S
+            rec["error"] = f"the run did not end within {INSPECTION_TIMEOUT_S:.0f} s"
         v = self.view
         if v is not None:
             rec.update({"verdict": v.verdict, "cycle_s": v.cycle_s, "points": int(len(v.points)),

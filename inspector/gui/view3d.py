@@ -67,7 +67,7 @@ class _Interactor(QtInteractor):
     _fresh = False  # a frame was rendered since the last paint: show it as it is
     _paint_asked = False
 
-    def _cb_frame(self, obj, evt) -> None:  # noqa: ANN001
+    def _cb_frame(self, obj, evt) -> None:
         rw = self._RenderWindow
         if rw is None or self._in_paint:
             return
@@ -83,11 +83,11 @@ class _Interactor(QtInteractor):
         if self._fresh:  # not shown meanwhile by a paint for another reason
             self.update()
 
-    def resizeGL(self, w: int, h: int) -> None:  # noqa: N802 - Qt's name
+    def resizeGL(self, w: int, h: int) -> None:
         self._fresh = False
         super().resizeGL(w, h)
 
-    def paintGL(self) -> None:  # noqa: N802 - Qt's name
+    def paintGL(self) -> None:
         if not self._fresh or self._in_paint:
             super().paintGL()
             return

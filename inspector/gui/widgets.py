@@ -61,7 +61,7 @@ __all__ = ["VERDICT_STYLE", "VerdictBanner", "DefectTable", "CameraStrip", "Came
 
 
 
-def QT_TRANSLATE_NOOP(context: str, text: str) -> str:  # noqa: N802 - the name lupdate collects texts from
+def QT_TRANSLATE_NOOP(context: str, text: str) -> str:
     """Mark ``text`` for translation in ``context`` (translated where it is shown); typed,
     unlike PySide6's own (which returns ``object``)."""
     return text
@@ -378,11 +378,11 @@ class CameraTile(QLabel):
             self.highlighted = on
             self.update()
 
-    def resizeEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+    def resizeEvent(self, event: Any) -> None:
         self._scaled = None
         super().resizeEvent(event)
 
-    def paintEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+    def paintEvent(self, event: Any) -> None:
         p = QPainter(self)
         r = self.rect()
         if self._scaled is None:
@@ -406,10 +406,10 @@ class CameraTile(QLabel):
         p.drawText(QPointF(10, 6 + p.fontMetrics().ascent()), label)
         p.end()
 
-    def mouseDoubleClickEvent(self, event: Any) -> None:  # noqa: N802
+    def mouseDoubleClickEvent(self, event: Any) -> None:
         self.opened.emit(self.thumb.name)
 
-    def keyPressEvent(self, event: Any) -> None:  # noqa: N802
+    def keyPressEvent(self, event: Any) -> None:
         if event.key() in (Qt.Key.Key_Return, Qt.Key.Key_Enter):
             self.opened.emit(self.thumb.name)
         else:
@@ -462,7 +462,7 @@ class CameraStrip(QWidget):
 
 
 class _ZoomView(QGraphicsView):
-    def wheelEvent(self, event: Any) -> None:  # noqa: N802
+    def wheelEvent(self, event: Any) -> None:
         f = 1.25 if event.angleDelta().y() > 0 else 0.8
         self.scale(f, f)
 
@@ -511,7 +511,7 @@ class CameraDialog(QDialog):
     def fit(self) -> None:
         self.view.fitInView(self.view.scene().itemsBoundingRect(), Qt.AspectRatioMode.KeepAspectRatio)
 
-    def showEvent(self, event: Any) -> None:  # noqa: N802
+    def showEvent(self, event: Any) -> None:
         super().showEvent(event)
         self.fit()
 
@@ -531,7 +531,7 @@ class _Chips(QWidget):
         self.setSizePolicy(QSizePolicy.Policy.Expanding, QSizePolicy.Policy.Fixed)
         self.setAccessibleName(self.tr("history: last parts"))
 
-    def sizeHint(self) -> QSize:  # noqa: N802 - Qt's name
+    def sizeHint(self) -> QSize:
         return QSize(self.count * (self.SIZE.width() + self.GAP), self.SIZE.height())
 
     def set_rows(self, rows: list[dict[str, Any]]) -> None:
@@ -542,7 +542,7 @@ class _Chips(QWidget):
     def _rect(self, k: int) -> QRect:
         return QRect(k * (self.SIZE.width() + self.GAP), 0, self.SIZE.width(), self.SIZE.height())
 
-    def paintEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+    def paintEvent(self, event: Any) -> None:
         p = QPainter(self)
         p.setRenderHint(QPainter.RenderHint.Antialiasing)
         f = QFont(self.font())
@@ -591,7 +591,7 @@ class _Chart(QWidget):
         self._settle.setInterval(150)
         self._settle.timeout.connect(self._check)
 
-    def sizeHint(self) -> QSize:  # noqa: N802 - Qt's name
+    def sizeHint(self) -> QSize:
         return QSize(720, 171)  # the figure of `inspector history --plot`'s strip: 8 x 1.9 in at 90 dpi
 
     def size_px(self) -> tuple[tuple[int, int], float]:
@@ -606,7 +606,7 @@ class _Chart(QWidget):
         self.image = image
         self.update()
 
-    def resizeEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+    def resizeEvent(self, event: Any) -> None:
         super().resizeEvent(event)
         self._px = ((self.width(), self.height()), float(self.devicePixelRatioF()))
         self._settle.start()
@@ -615,7 +615,7 @@ class _Chart(QWidget):
         if not self.fits(self.image):
             self.resized.emit()
 
-    def paintEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+    def paintEvent(self, event: Any) -> None:
         if self.image is None:
             return
         p = QPainter(self)

@@ -115,7 +115,7 @@ class _Activity(QObject):
         super().__init__()
         self.roles = roles
 
-    def eventFilter(self, obj: QObject, event: QEvent) -> bool:  # noqa: N802
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:
         if event.type() in (QEvent.Type.KeyPress, QEvent.Type.MouseButtonPress, QEvent.Type.Wheel):
             self.roles.touch()
         return False
@@ -129,7 +129,7 @@ class _KioskGuard(QObject):
         super().__init__(window)
         self.window = window
 
-    def eventFilter(self, obj: QObject, event: QEvent) -> bool:  # noqa: N802
+    def eventFilter(self, obj: QObject, event: QEvent) -> bool:
         kind = event.type()
         if kind == QEvent.Type.Hide and isinstance(obj, QDialog):
             QTimer.singleShot(0, self.window.to_front)
@@ -773,7 +773,7 @@ class MainWindow(QMainWindow):
         else:
             self.show()
 
-    def showEvent(self, event: Any) -> None:  # noqa: N802 - Qt's name
+    def showEvent(self, event: Any) -> None:
         super().showEvent(event)
         if not self.kiosk and self._fitted_for is not None:
             QTimer.singleShot(0, self._refit_frame)
@@ -860,7 +860,7 @@ class MainWindow(QMainWindow):
         editor.open()
         return editor
 
-    def resizeEvent(self, event: Any) -> None:  # noqa: N802
+    def resizeEvent(self, event: Any) -> None:
         super().resizeEvent(event)
         small = self.height() < 900
         self.banner.set_compact(small)
@@ -869,7 +869,7 @@ class MainWindow(QMainWindow):
             b.setMinimumHeight(48 if small else 64)
 
     # -- closing ------------------------------------------------------------------------------
-    def closeEvent(self, event: Any) -> None:  # noqa: N802
+    def closeEvent(self, event: Any) -> None:
         """Closing during an inspection cancels it and joins the worker."""
         if self.kiosk and not self._leaving and self.roles.role != ENGINEER:
             # The operator's kiosk stays: Alt+F4 (the window manager's close), Ctrl+Q and

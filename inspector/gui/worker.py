@@ -18,7 +18,8 @@ from __future__ import annotations
 import dataclasses
 import sys
 import threading
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from PySide6.QtCore import QObject, Signal
 

@@ -277,7 +277,7 @@ def _classify_kernel(cells, act, origin, size_mm, r, lipc, slack, cam, size, sdt
     N = cells.shape[0]
     C = cam.shape[0]
     nb = (N + _CBLOCK - 1) // _CBLOCK
-    for wk in numba.prange(nw):  # one work loop per thread
+    for _wk in numba.prange(nw):  # one work loop per thread
         while True:
             b = _next_item(ctr)
             if b >= nb:
@@ -485,7 +485,7 @@ def _finest_kernel(parents, pact, origin, size_mm, rp, r, lipc, slack, h, use_pa
     C = cam.shape[0]
     psize = 2.0 * size_mm
     nb = (M + _BLOCK - 1) // _BLOCK
-    for wk in numba.prange(nw):  # one work loop per thread
+    for _wk in numba.prange(nw):  # one work loop per thread
         cl = np.empty(C, dtype=np.int64)  # the cell's undecided cameras
         und = np.empty(C, dtype=np.bool_)  # cl[k] undecided for the child
         gcache = np.empty((C, 4))
@@ -631,7 +631,7 @@ def _gather_kernel(cells, act, status, mode, origin, size_mm, bstart, lohi, cent
     C = act.shape[1]
     finest = mode == 1
     nb = (N + _CBLOCK - 1) // _CBLOCK
-    for wk in numba.prange(nw):  # one work loop per thread
+    for _wk in numba.prange(nw):  # one work loop per thread
         while True:
             b = _next_item(ctr)
             if b >= nb:
@@ -826,7 +826,7 @@ def _mesh_signs_kernel(tops, B0, nmax, lo, mv, lipc, slack, cam, size, sdt, vals
         b //= 2
         depth += 1
     cap = 8 * depth + 1
-    for wk in numba.prange(nw):  # one work loop per thread
+    for _wk in numba.prange(nw):  # one work loop per thread
         sblk = np.empty((cap, 5), dtype=np.int64)  # i, j, k, B, hint camera
         sact = np.empty((cap, C), dtype=np.bool_)
         slb = np.empty(cap)  # lower bound of f over the dropped cameras, mm
@@ -994,7 +994,7 @@ def _fill_kernel(vol, exact, lo, mv, cam, size, sdt, cube, count, nw, ctr):
                             if vol[i - 1 + a, j - 1 + b, k - 1 + c] > 0.0:
                                 npos += 1
                 cube[i, j, k] = 0 < npos < 8
-    for wk in numba.prange(nw):  # one work loop per thread
+    for _wk in numba.prange(nw):  # one work loop per thread
         while True:
             i = _next_item(ctr)
             if i >= n0 - 2:

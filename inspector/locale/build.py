@@ -32,7 +32,7 @@ _PACKAGE = FOLDER.parent  # inspector/
 _ROOT = _PACKAGE.parent
 
 
-def SOURCES() -> list[Path]:  # noqa: N802 - a constant computed on demand
+def SOURCES() -> list[Path]:
     """The files whose texts are translated: the PDF report."""
     return [_PACKAGE / "report.py"]
 

@@ -15,7 +15,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
 
-import measure as ms  # noqa: E402
+import measure as ms
 
 ROOT = Path(__file__).resolve().parents[2]
 

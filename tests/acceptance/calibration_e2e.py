@@ -53,7 +53,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
 
-from calibration_common import ROOT, Measurer, inspector_exe, relax_watchdog, simulate_parts  # noqa: E402
+from calibration_common import ROOT, Measurer, inspector_exe, relax_watchdog, simulate_parts
 TARGET = ROOT / "examples" / "calibration" / "charuco_cube.toml"
 BAR_RMS_PX, BAR_F_PCT, BAR_CENTRE_MM, BAR_BCPS_PX = 0.05, 0.1, 0.5, 0.01
 

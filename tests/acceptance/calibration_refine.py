@@ -43,7 +43,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
 
-from calibration_common import Measurer, inspector_exe, relax_watchdog, simulate_parts  # noqa: E402
+from calibration_common import Measurer, inspector_exe, relax_watchdog, simulate_parts
 
 TOLERANCE_PX = 0.01
 

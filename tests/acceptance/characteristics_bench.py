@@ -29,12 +29,12 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
 
-from test_characteristics import _true_bracket  # noqa: E402  the test's true bracket (512-section holes)
+from test_characteristics import _true_bracket
 
-from inspector.characteristics.measure import Characteristic, measure  # noqa: E402
-from inspector.kernels.features import find_features  # noqa: E402
-from inspector.parts import make_part  # noqa: E402
-from inspector.reference import Reference  # noqa: E402
+from inspector.characteristics.measure import Characteristic, measure
+from inspector.kernels.features import find_features
+from inspector.parts import make_part
+from inspector.reference import Reference
 
 SCALE = 1.002
 

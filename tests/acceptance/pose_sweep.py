@@ -86,8 +86,8 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
 
-import foreign_capture as fc  # noqa: E402
-import measure as ms  # noqa: E402
+import foreign_capture as fc
+import measure as ms
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_RECIPE = ROOT / "recipes" / "default.toml"
@@ -390,7 +390,7 @@ def judge_defects(defects: list[dict[str, Any]], X: np.ndarray, d_real: np.ndarr
         c, e = np.asarray(d["position"], float), np.asarray(d["extent"], float)
         inside = np.all(np.abs(X - c) <= e / 2.0 + margin_mm, axis=1)
         missing = d["kind"] == "missing"
-        real = float((d_real[inside].min() if missing else d_real[inside].max())) if inside.any() else float("nan")
+        real = float(d_real[inside].min() if missing else d_real[inside].max()) if inside.any() else float("nan")
         beyond = (real < lower) if missing else (real > upper)
         explained = bool(inside.any() and beyond and abs(d["worst_mm"]) <= abs(real) + explain_mm)
         out.append({"kind": d["kind"], "n_points": d["n_points"], "worst_mm": d["worst_mm"], "real_mm": real,

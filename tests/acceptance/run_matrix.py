@@ -41,8 +41,8 @@ import shapely
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
 
-import foreign_capture as fc  # noqa: E402
-import measure as ms  # noqa: E402
+import foreign_capture as fc
+import measure as ms
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_RECIPE = ROOT / "recipes" / "default.toml"

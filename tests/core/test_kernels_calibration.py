@@ -41,7 +41,7 @@ def _scene(n_cams=5, n_poses=8, noise=0.05, seed=0, f=2000.0, size=512):
         dist = np.array([rng.uniform(0.05, 0.12), 0.0, rng.normal() * 1e-3, rng.normal() * 1e-3, 0.0])
         cams.append(Camera(f"c{i}", size, size, K, dist, R, -R @ C))
     poses = []
-    for q in range(n_poses):
+    for _ in range(n_poses):
         T = np.eye(4)
         T[:3, :3] = Rotation.random(random_state=rng).as_matrix()
         T[:3, 3] = rng.uniform(-5, 5, 3)

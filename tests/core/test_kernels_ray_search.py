@@ -17,8 +17,9 @@ def sphere(X: np.ndarray) -> np.ndarray:
     return np.linalg.norm(X - CENTRE, axis=1) - RADIUS
 
 
-def rays(p: np.ndarray, origin=np.zeros(3)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rays from ``origin`` passing at ``p`` (M,) mm from the centre, and the range 60..140 mm."""
+def rays(p: np.ndarray, origin: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays from ``origin`` (default: 0) passing at ``p`` (M,) mm from the centre, and the range 60..140 mm."""
+    origin = np.zeros(3) if origin is None else origin
     target = CENTRE + np.column_stack([p, np.zeros_like(p), np.zeros_like(p)])
     d = target - origin
     d /= np.linalg.norm(d, axis=1)[:, None]

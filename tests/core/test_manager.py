@@ -75,14 +75,14 @@ def test_duplicate_and_bad_kind_rejected():
             registry.add(StageSpec(name="carve.hull", run=lambda c, p: c))
 
     with pytest.raises(ValueError, match="registered twice"):
-        create_plugin_manager(plugins=[Dup()]).stages
+        _ = create_plugin_manager(plugins=[Dup()]).stages
     class Kind:
         @hookimpl
         def inspector_register_stages(self, registry):
             registry.add(StageSpec(name="paint.red", run=lambda c, p: c))
 
     with pytest.raises(ValueError, match="kind must be one of"):
-        create_plugin_manager(load_entrypoints=False, plugins=[Kind()]).stages
+        _ = create_plugin_manager(load_entrypoints=False, plugins=[Kind()]).stages
 
 
 def test_import_inspector_is_light():

@@ -237,7 +237,7 @@ def test_an_evaluate_variant_without_the_contract_is_refused_at_registration():
         class Variant:
             @hookimpl
             def inspector_register_stages(self, registry):
-                registry.add(StageSpec(name="evaluate.mine", run=lambda c, p: c, requires=("bcps",), summary=summary))
+                registry.add(StageSpec(name="evaluate.mine", run=lambda c, p: c, requires=("bcps",), summary=summary))  # noqa: B023 - used in this iteration
 
         with pytest.raises(PluginError, match=message):
             create_plugin_manager(load_entrypoints=False, plugins=[Variant()])

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import shutil
 import sqlite3
-from datetime import datetime, timedelta, timezone
+from datetime import datetime, timedelta, UTC
 from pathlib import Path
 
 import pytest
@@ -24,7 +24,7 @@ from inspector.shift import (
 )
 
 DEFAULT = str(Path(__file__).resolve().parents[2] / "recipes" / "default.toml")
-UTC = timezone.utc
+UTC = UTC
 
 
 def _run(captures, out: Path) -> int:

@@ -27,16 +27,16 @@ import pytest
 
 pytest.importorskip("asyncua", reason="asyncua is not installed (make installs it from requirements.lock)")
 
-from asyncua import Client, ua  # noqa: E402
-from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256  # noqa: E402
+from asyncua import Client, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-from inspector import hookimpl  # noqa: E402
-from inspector.errors import RecipeError  # noqa: E402
-from inspector_drivers.opcua import model  # noqa: E402
-from inspector_drivers.opcua.config import ServerSettings, credentials, load_settings, parse_endpoint  # noqa: E402
-from inspector_drivers.opcua.security import CLIENT_URI, make_certificate, make_pki  # noqa: E402
-from inspector_drivers.opcua.server import InspectorServer, ServerThread, part_id_problem  # noqa: E402
-from inspector.history_store import read_history  # noqa: E402
+from inspector import hookimpl
+from inspector.errors import RecipeError
+from inspector_drivers.opcua import model
+from inspector_drivers.opcua.config import ServerSettings, credentials, load_settings, parse_endpoint
+from inspector_drivers.opcua.security import CLIENT_URI, make_certificate, make_pki
+from inspector_drivers.opcua.server import InspectorServer, ServerThread, part_id_problem
+from inspector.history_store import read_history
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPES = Path(__file__).resolve().parent / "opcua_recipes"

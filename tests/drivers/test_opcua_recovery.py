@@ -29,11 +29,11 @@ import pytest
 
 pytest.importorskip("asyncua", reason="asyncua is not installed (make installs it from requirements.lock)")
 
-from asyncua import Client, ua  # noqa: E402
+from asyncua import Client, ua
 
-from inspector_drivers.opcua import model  # noqa: E402
-from inspector_drivers.opcua.journal import JOURNAL_FILE  # noqa: E402
-from inspector.history_store import read_history, recorded  # noqa: E402
+from inspector_drivers.opcua import model
+from inspector_drivers.opcua.journal import JOURNAL_FILE
+from inspector.history_store import read_history, recorded
 
 RECIPES = Path(__file__).resolve().parent / "opcua_recipes"
 INSPECTOR = str(Path(sys.executable).parent / "inspector")

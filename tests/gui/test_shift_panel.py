@@ -3,7 +3,7 @@ the same rows (a history made by real inspections: the CLI's, then one of the wi
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 
 import pytest
@@ -26,7 +26,7 @@ def test_the_shift_panel_counts_what_the_history_has(qtbot, tmp_path, sim_captur
     assert main(["run", str(DEMO), "--capture", str(sim_captures["good"]), str(sim_captures["notched"]),
                  "--out", str(out), "-q"]) == 1
     rows = read_history(out)
-    first = datetime.fromisoformat(rows[0]["inspected_at"]).astimezone(timezone.utc)
+    first = datetime.fromisoformat(rows[0]["inspected_at"]).astimezone(UTC)
     # One 24-hour shift from the first row's minute: every row is in it, whenever the test runs.
     shifts = ShiftSettings(starts=(first.strftime("%H:%M"),), names=("day",), timezone="UTC")
     w = MainWindow(DEMO, out, capture=sim_captures["notched"], config_dir=tmp_path / "config", shifts=shifts)
@@ -66,7 +66,7 @@ def test_the_shift_panel_names_the_worst_characteristics(qtbot, tmp_path):
     from inspector.model import InspectionResult
     from inspector.shift import ShiftSettings, shift_counters
 
-    t0 = datetime(2026, 12, 3, 6, 0, tzinfo=timezone.utc)
+    t0 = datetime(2026, 12, 3, 6, 0, tzinfo=UTC)
     for k, (d, t) in enumerate([(36.002, 6.004), (36.060, None), (35.990, 6.012)]):
         rows = [{"id": "D1", "measured": d, "nominal": 36.0, "lower": -0.05, "upper": 0.05,
                  "verdict": "ok" if abs(d - 36.0) <= 0.05 else "nok"},

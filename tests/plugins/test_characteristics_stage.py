@@ -20,9 +20,9 @@ from inspector.pipeline import InspectionContext
 from inspector.reference import Reference
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "core"))
-from test_characteristics import _true_bracket  # noqa: E402  the test's true bracket (512-section holes)
+from test_characteristics import _true_bracket
 
-from inspector_plugins.characteristics import (  # noqa: E402
+from inspector_plugins.characteristics import (
     CharacteristicsParams,
     characteristic_rows,
     run_characteristics,

@@ -4,7 +4,7 @@ characteristic over the parts a real history.sqlite recorded, and its control ch
 from __future__ import annotations
 
 import statistics
-from datetime import datetime, timedelta, timezone
+from datetime import datetime, timedelta, UTC
 
 import numpy as np
 import pytest
@@ -28,7 +28,7 @@ def _rows(d: float, t: float | None) -> list[dict]:
 
 @pytest.fixture
 def history(tmp_path):
-    t0 = datetime(2026, 12, 3, 6, 0, tzinfo=timezone.utc)
+    t0 = datetime(2026, 12, 3, 6, 0, tzinfo=UTC)
     for k, d in enumerate(DIAMETERS):
         t = None if k == 4 else 6.0 + 0.001 * (k % 3)  # one part where the thickness was not measurable
         verdict = "fail" if d > 36.05 else "pass"

@@ -28,7 +28,7 @@ __all__ = ["SOURCES", "tool", "collect", "untranslated", "update", "release", "m
 _PACKAGE = FOLDER.parents[1]  # inspector/
 
 
-def SOURCES() -> list[Path]:  # noqa: N802 - a constant computed on demand
+def SOURCES() -> list[Path]:
     """The files whose texts are translated: the GUI's modules and the shift counters."""
     return sorted((_PACKAGE / "gui").glob("*.py")) + [_PACKAGE / "shift.py"]
 
