@@ -78,6 +78,7 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
     a Dask cluster (:mod:`inspector.distributed_run`), with the same results and output.
     ``unapproved``: on a production station, run a recipe no engineer approved anyway
     (:func:`inspector.approval.require_approved`: a warning and an audit row)."""
+    from inspector.locale import _
     from inspector.outputs import one_line
     from inspector.session import Inspected, RunStarted, Session, Source, Warned
 
@@ -90,7 +91,8 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
         # Only the verdicts are kept (the summary counts them): a live driver or a long batch
         # must not hold every result's points in memory (5 MB a capture).
         if isinstance(event, RunStarted) and event.inbox is not None and not quiet:
-            print(f"watching {event.inbox} for capture folders (Ctrl-C to stop); results in {event.outdir}", flush=True)
+            print(_("watching {inbox} for capture folders (Ctrl-C to stop); results in {outdir}").format(
+                inbox=event.inbox, outdir=event.outdir), flush=True)
         elif isinstance(event, Inspected):
             result = event.outcome.result
             if not quiet:
@@ -119,16 +121,17 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
                 if not quiet:
                     print(f"wrote {path}", flush=True)
     if summary.inbox is not None and summary.ended == "interrupted" and not quiet:
-        print("watch stopped", flush=True)
+        print(_("watch stopped"), flush=True)
     if not summary.inspected and summary.inbox is not None:
         if not quiet:
-            print(f"no capture arrived in {summary.inbox}")
+            print(_("no capture arrived in {inbox}").format(inbox=summary.inbox))
         return EXIT_OK
     if not summary.inspected:
         raise RecipeError("no capture to inspect")
     if not quiet:
         n = summary.counts
-        print(f"{summary.inspected} inspected: {n['pass']} pass, {n['fail']} fail, {n['error']} error. Results in {summary.outdir.resolve()}")
+        print(_("{n} inspected: {p} pass, {f} fail, {e} error. Results in {outdir}").format(
+            n=summary.inspected, p=n["pass"], f=n["fail"], e=n["error"], outdir=summary.outdir.resolve()))
     return summary.exit_status
 
 
@@ -164,6 +167,9 @@ def _add_run(sub: argparse._SubParsersAction[Any]) -> None:
     r.add_argument("--dfq", metavar="FILE", help="also write the run's characteristics as Q-DAS AQDEF (DFQ): one value "
                                                  "line per part (the recipe's [[characteristics]])")
     r.add_argument("--qif", metavar="FILE", help="also write the run's characteristics as a QIF 3.0 Results document")
+    r.add_argument("--lang", metavar="LANG",
+                   help="language of the progress and summary lines: en, de or es (default: $INSPECTOR_LANG, else en; "
+                        "never the system locale: plant scripts parse these lines)")
     r.add_argument("--unapproved", action="store_true",
                    help="in production mode (inspector roles production on), run a recipe no engineer approved, or "
                         "changed since, anyway: a warning, and an unapproved-run row in OUTDIR's audit")
@@ -186,9 +192,16 @@ def _cluster_params(args: argparse.Namespace) -> dict[str, Any] | None:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    return run_recipe(args.recipe, args.capture, args.out, args.reference, args.quiet,
-                      watch=_watch_params(args), csv=args.csv, pm=args.plugin_manager, cluster=_cluster_params(args),
-                      unapproved=args.unapproved, dfq=args.dfq, qif=args.qif)
+    from inspector.locale import choose, using
+
+    try:
+        lang = choose(getattr(args, "lang", None))  # --lang, else $INSPECTOR_LANG, else English
+    except ValueError as e:
+        raise RecipeError(f"--lang: {e}") from None
+    with using(lang):
+        return run_recipe(args.recipe, args.capture, args.out, args.reference, args.quiet,
+                          watch=_watch_params(args), csv=args.csv, pm=args.plugin_manager, cluster=_cluster_params(args),
+                          unapproved=args.unapproved, dfq=args.dfq, qif=args.qif)
 
 
 # -- plugins / plugin new / recipe check ---------------------------------------------------

@@ -371,21 +371,27 @@ def write_result(result: InspectionResult, outdir: Path, *, trace: str | None = 
 
 
 def one_line(result: InspectionResult) -> str:
-    """A progress/summary line for one result."""
+    """A progress/summary line for one result, in the headless language (:mod:`inspector.locale`:
+    English unless ``inspector run --lang`` or ``$INSPECTOR_LANG`` chose another)."""
+    from inspector.locale import _, number
+
     name = printable(result.capture)  # one line whatever the capture's name holds
     if result.verdict == "error":
-        return f"{name}: ERROR {result.error}"
+        return _("{name}: ERROR {error}").format(name=name, error=result.error)
     dev = ""
     d = result.summary.deviation_mm if result.summary is not None else None  # the evaluate contract
     if d is not None:
-        dev = f"  deviation mean {d.mean:+.4f} min {d.min:+.4f} max {d.max:+.4f} mm"
+        dev = _("  deviation mean {mean} min {min} max {max} mm").format(
+            mean=number(d.mean, "+.4f"), min=number(d.min, "+.4f"), max=number(d.max, "+.4f"))
     n = len(result.defects)
-    defects = f"  {n} defect{'s' if n != 1 else ''}" if n else ""
+    defects = (_("  {n} defect") if n == 1 else _("  {n} defects")).format(n=n) if n else ""
     chars = result.stats.get("characteristics") if isinstance(result.stats, Mapping) else None
     nok = list(chars.get("nok_ids", ())) if isinstance(chars, Mapping) else []
     if nok:  # a part failed by a characteristic alone must not read "FAIL ... 0 defects"
-        defects += f"  {len(nok)} NOK characteristic{'s' if len(nok) != 1 else ''} ({', '.join(map(str, nok))})"
-    return f"{name}: {result.verdict.upper()}{dev}{defects}  ({result.timings_s.get('total', 0.0):.2f} s)"
+        defects += (_("  {n} NOK characteristic ({ids})") if len(nok) == 1 else
+                    _("  {n} NOK characteristics ({ids})")).format(n=len(nok), ids=", ".join(map(str, nok)))
+    verdict = {"pass": _("PASS"), "fail": _("FAIL")}.get(result.verdict, result.verdict.upper())
+    return f"{name}: {verdict}{dev}{defects}  ({number(result.timings_s.get('total', 0.0), '.2f')} s)"
 
 
 # -- issue 16: result.json rewritten once the inspector_on_result hooks have run ---------------

@@ -33,8 +33,8 @@ _ROOT = _PACKAGE.parent
 
 
 def SOURCES() -> list[Path]:
-    """The files whose texts are translated: the PDF report."""
-    return [_PACKAGE / "report.py"]
+    """The files whose texts are translated: the PDF report and `inspector run`'s lines."""
+    return [_PACKAGE / "report.py", _PACKAGE / "outputs.py", _PACKAGE / "cli.py"]
 
 
 def po_file(lang: str) -> Path:

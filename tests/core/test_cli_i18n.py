@@ -1,0 +1,55 @@
+"""`inspector run --lang`: the operator's lines (each part's line, the summary) in German or
+Spanish, from the same gettext catalogues as the PDF report; English unless asked, whatever
+the system locale (plant scripts parse these lines)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from inspector.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+DEMO = ROOT / "recipes" / "demo.toml"
+
+
+def _run(capsys, tmp_path, sim_captures, *extra: str) -> list[str]:
+    code = main(["run", str(DEMO), "--capture", str(sim_captures["good"]), str(sim_captures["notched"]),
+                 "--out", str(tmp_path / "out"), *extra])
+    assert code == 1  # the notched cube fails, whatever the language
+    return capsys.readouterr().out.strip().splitlines()
+
+
+@pytest.mark.parametrize(("lang", "words"), [
+    ("de", ("IO", "NIO", "Abweichung Mittel", "Fehlstelle", "geprüft", "Ergebnisse in")),
+    ("es", ("CONFORME", "RECHAZADA", "desviación media", "defecto", "inspeccionadas", "Resultados en")),
+])
+def test_the_lines_in_the_operators_language(capsys, tmp_path, sim_captures, monkeypatch, lang, words):
+    monkeypatch.setenv("LANG", "en_US.UTF-8")  # the system locale is not followed
+    lines = _run(capsys, tmp_path, sim_captures, "--lang", lang)
+    text = "\n".join(lines)
+    for w in words:
+        assert w in text, (w, text)
+    assert re.search(r"[+-]\d+,\d{4}", lines[0]), lines[0]  # decimal comma
+    assert not re.search(r"\b(PASS|FAIL|deviation|inspected|defects?)\b", text), text
+
+
+def test_english_unless_asked_and_the_environment_variable(capsys, tmp_path, sim_captures, monkeypatch):
+    monkeypatch.setenv("LANG", "de_DE.UTF-8")
+    monkeypatch.delenv("INSPECTOR_LANG", raising=False)
+    lines = _run(capsys, tmp_path / "en", sim_captures)
+    assert ": PASS" in lines[0] and "deviation mean" in lines[0] and ": FAIL" in lines[1]
+    assert lines[-1].startswith("2 inspected: 1 pass, 1 fail, 0 error.")
+    monkeypatch.setenv("INSPECTOR_LANG", "es_ES.UTF-8")
+    lines = _run(capsys, tmp_path / "es", sim_captures)
+    assert "CONFORME" in lines[0] and lines[-1].startswith("2 inspeccionadas: 1 conformes, 1 rechazadas")
+
+
+def test_an_unknown_language_is_one_line(capsys, tmp_path, sim_captures):
+    code = main(["run", str(DEMO), "--capture", str(sim_captures["good"]), "--out", str(tmp_path / "o"), "--lang", "fr"])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "inspector: error: --lang: language 'fr' is not available (available: en, de, es)"
+    assert not (tmp_path / "o").exists()
