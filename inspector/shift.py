@@ -55,14 +55,23 @@ _HHMM = re.compile(r"^([01]\d|2[0-3]):([0-5]\d)$")
 
 # -- translation hook ---------------------------------------------------------------------------
 # The texts below are marked with translate("Shift", ...), which Qt's lupdate collects into the
-# GUI's translation files. Headless they stay English; the GUI installs Qt's translator.
-_translator: Callable[[str, str], str] = lambda context, text: text  # noqa: E731
+# GUI's translation files and Babel into the headless catalogues (inspector/locale); the GUI
+# installs Qt's translator, a command line the language of --lang.
+def _headless(context: str, text: str) -> str:
+    """The headless language's text (:mod:`inspector.locale`: ``--lang``, ``$INSPECTOR_LANG``)."""
+    from inspector.locale import gettext
+
+    return gettext(text)
+
+
+_translator: Callable[[str, str], str] = _headless
 
 
 def set_translator(func: Callable[[str, str], str] | None) -> None:
-    """Translate this module's texts with ``func(context, text)`` (None: English again)."""
+    """Translate this module's texts with ``func(context, text)`` (None: the headless
+    catalogues again, :mod:`inspector.locale`)."""
     global _translator
-    _translator = func if func is not None else (lambda context, text: text)
+    _translator = func if func is not None else _headless
 
 
 def translate(context: str, text: str) -> str:
@@ -422,11 +431,14 @@ def shift_counters(history: str | Path, settings: ShiftSettings | None = None, *
 
 # -- text ---------------------------------------------------------------------------------------
 def _pct(x: float | None) -> str:
-    return "-" if x is None or not math.isfinite(x) else f"{100 * x:.1f} %"
+    from inspector.locale import number
+
+    return "-" if x is None or not math.isfinite(x) else f"{number(100 * x, '.1f')} %"
 
 
 def format_shift(c: ShiftCounters, *, top: int = 5) -> str:
     """One shift's counters as lines of text (``inspector history --shift``)."""
+    from inspector.locale import number
     s = c.shift
     lines = [translate("Shift", "shift {name} {start} to {end}").format(
         name=s.name, start=f"{s.start:%Y-%m-%d %H:%M}", end=f"{s.end:%H:%M}")]
@@ -435,7 +447,7 @@ def format_shift(c: ShiftCounters, *, top: int = 5) -> str:
     if c.regions:
         lines.append("  " + translate("Shift", "worst regions (parts with a defect there, defects, worst mm):"))
         for g in c.regions[:top]:
-            lines.append(f"    {g.region:24s} {g.parts:5d} {g.defects:5d} {g.worst_mm:+9.3f}")
+            lines.append(f"    {g.region:24s} {g.parts:5d} {g.defects:5d} {number(g.worst_mm, '+.3f'):>9s}")
     if c.characteristics:
         lines.append("  " + translate("Shift", "worst characteristics (parts, NOK, not measurable, most of the tolerance used):"))
         for k in c.characteristics[:top]:

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 
+from inspector.locale import _, number
 from inspector.shift import ShiftCounters
 
 __all__ = ["render_shift_pdf"]
@@ -43,7 +44,7 @@ def render_shift_pdf(counters: Sequence[ShiftCounters], out: Path, *, source: st
                 _draw(fig, c, source, made)
                 pdf.savefig(fig)
             info = pdf.infodict()
-            info["Title"] = f"Shift report: {', '.join(c.shift.label() for c in counters)}"
+            info["Title"] = _("Shift report: {shifts}").format(shifts=", ".join(c.shift.label() for c in counters))
             info["Creator"] = "inspector history --shift --pdf"
         os.replace(tmp, out)
     finally:
@@ -79,22 +80,23 @@ def _rule(fig, y: float):
 
 
 def _pct(x: float | None) -> str:
-    return "—" if x is None else f"{100 * x:.1f} %"
+    return "—" if x is None else f"{number(100 * x, '.1f')} %"
 
 
 def _draw(fig, c: ShiftCounters, source: str, made: str) -> None:
     ink = _Ink(fig)
     s = c.shift
-    ink.line("Shift report", 18, fontweight="bold")
-    ink.line(f"{s.name} shift, {s.start:%Y-%m-%d %H:%M} to {s.end:%Y-%m-%d %H:%M} ({s.start:%Z}{s.start:%z})", 11)
+    ink.line(_("Shift report"), 18, fontweight="bold")
+    ink.line(_("{name} shift, {start} to {end} ({zone})").format(
+        name=s.name, start=f"{s.start:%Y-%m-%d %H:%M}", end=f"{s.end:%Y-%m-%d %H:%M}", zone=f"{s.start:%Z}{s.start:%z}"), 11)
     if source:
-        ink.line(f"history: {source}", 8.5, color=_GREY)
-    ink.line(f"made {made}", 8.5, color=_GREY)
+        ink.line(_("history: {source}").format(source=source), 8.5, color=_GREY)
+    ink.line(_("made {time}").format(time=made), 8.5, color=_GREY)
     ink.y += 0.15
     # The figures, large: what a shift leader reads first.
-    cells = [("inspected", str(c.inspected), "black"), ("pass", str(c.passed), _COLOURS["pass"]),
-             ("fail", str(c.failed), _COLOURS["fail"]), ("error", str(c.errors), "#a86f00"),
-             ("yield", _pct(c.yield_), "black")]
+    cells = [(_("inspected"), str(c.inspected), "black"), (_("pass"), str(c.passed), _COLOURS["pass"]),
+             (_("fail"), str(c.failed), _COLOURS["fail"]), (_("error"), str(c.errors), "#a86f00"),
+             (_("yield"), _pct(c.yield_), "black")]
     width = (_W - 2 * _MARGIN) / len(cells)
     for i, (label, value, colour) in enumerate(cells):
         x = _MARGIN + i * width
@@ -103,20 +105,20 @@ def _draw(fig, c: ShiftCounters, source: str, made: str) -> None:
                  color=colour, va="top")
     ink.y += 0.75
     _verdict_bar(fig, ink, c)
-    ink.heading("Worst regions (parts with a defect there, defects, worst deviation)")
+    ink.heading(_("Worst regions (parts with a defect there, defects, worst deviation)"))
     if not c.regions:
-        ink.line("no defect in this shift", color=_GREY)
+        ink.line(_("no defect in this shift"), color=_GREY)
     for g in c.regions[:_ROWS]:
-        _row(ink, [g.region, f"{g.parts}", f"{g.defects}", f"{g.worst_mm:+.3f} mm"])
-    ink.heading("Worst characteristics (parts, NOK, not measurable, most of the tolerance used)")
+        _row(ink, [g.region, f"{g.parts}", f"{g.defects}", f"{number(g.worst_mm, '+.3f')} mm"])
+    ink.heading(_("Worst characteristics (parts, NOK, not measurable, most of the tolerance used)"))
     if not c.characteristics:
-        ink.line("no characteristic measured in this shift", color=_GREY)
+        ink.line(_("no characteristic measured in this shift"), color=_GREY)
     for ch in c.characteristics[:_ROWS]:
         _row(ink, [ch.id, f"{ch.parts}", f"{ch.nok}", f"{ch.not_measurable}", _pct(ch.worst_use)],
              colour=_COLOURS["fail"] if ch.nok else None)
-    ink.heading("Errors by reason")
+    ink.heading(_("Errors by reason"))
     if not c.error_groups:
-        ink.line("no error in this shift", color=_GREY)
+        ink.line(_("no error in this shift"), color=_GREY)
     for e in c.error_groups[:_ROWS]:
         reason = e.reason if len(e.reason) <= 95 else e.reason[:94] + "…"
         _row(ink, [f"{e.count}×", reason], widths=(0.6,))
@@ -135,7 +137,7 @@ def _verdict_bar(fig, ink: _Ink, c: ShiftCounters) -> None:
     """The shares of pass, fail and error as one bar across the page (nothing when no part
     was inspected)."""
     if not c.inspected:
-        ink.line("no inspection in this shift", color=_GREY)
+        ink.line(_("no inspection in this shift"), color=_GREY)
         return
     from matplotlib.patches import Rectangle
 
@@ -146,7 +148,7 @@ def _verdict_bar(fig, ink: _Ink, c: ShiftCounters) -> None:
         w = full * n / c.inspected
         fig.add_artist(Rectangle((x, _H - ink.y - h), w, h, transform=fig.dpi_scale_trans, color=_COLOURS[key], lw=0))
         if w > 0.5:
-            fig.text(x + w / 2, _H - ink.y - h / 2, f"{key} {n}", transform=fig.dpi_scale_trans, fontsize=8.5,
+            fig.text(x + w / 2, _H - ink.y - h / 2, f"{_(key)} {n}", transform=fig.dpi_scale_trans, fontsize=8.5,
                      color="white" if key != "error" else "black", ha="center", va="center")
         x += w
     ink.y += h + 0.1

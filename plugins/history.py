@@ -464,6 +464,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--config", metavar="TOML", help="the cell's settings for --shift ([shifts]; default cell.toml in "
                                                     "$INSPECTOR_CONFIG_DIR or ~/.config/inspector when present)")
     p.add_argument("--pdf", metavar="FILE", help="with --shift: also the shift report as a PDF, one A4 page per shift")
+    p.add_argument("--lang", metavar="LANG", help="with --shift: the language of its lines and PDF: en, de or es "
+                                                  "(default: $INSPECTOR_LANG, else en; never the system locale)")
 
 
 def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
@@ -687,9 +689,16 @@ def run(args) -> int:
         if args.outdir is None:
             print("inspector: error: --shift: give OUTDIR (its history.sqlite)", file=sys.stderr)
             return 2
+        from inspector.locale import choose, using
         from inspector.shift import print_shifts
 
-        return print_shifts(args.outdir, shifts=args.shift, config=args.config, pdf=args.pdf)
+        try:
+            lang = choose(args.lang)
+        except ValueError as e:
+            print(f"inspector: error: --lang: {e}", file=sys.stderr)
+            return 2
+        with using(lang):
+            return print_shifts(args.outdir, shifts=args.shift, config=args.config, pdf=args.pdf)
     if args.pdf is not None:
         print("inspector: error: --pdf: the shift report; give --shift too", file=sys.stderr)
         return 2

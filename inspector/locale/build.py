@@ -33,8 +33,11 @@ _ROOT = _PACKAGE.parent
 
 
 def SOURCES() -> list[Path]:
-    """The files whose texts are translated: the PDF report and `inspector run`'s lines."""
-    return [_PACKAGE / "report.py", _PACKAGE / "outputs.py", _PACKAGE / "cli.py"]
+    """The files whose texts are translated: the PDF report, `inspector run`'s lines, the
+    shift counters' text (``translate("Shift", ...)``, which the GUI's Qt files hold too) and
+    the shift report."""
+    return [_PACKAGE / "report.py", _PACKAGE / "outputs.py", _PACKAGE / "cli.py", _PACKAGE / "shift.py",
+            _PACKAGE / "shift_report.py"]
 
 
 def po_file(lang: str) -> Path:
@@ -50,7 +53,7 @@ def collect() -> Catalog:
     template = Catalog(domain=DOMAIN, project="Inspector", fuzzy=False)
     for path in SOURCES():
         where = path.relative_to(_ROOT).as_posix()
-        for lineno, message, comments, context in extract_from_file("python", path, keywords={"_": None}):
+        for lineno, message, comments, context in extract_from_file("python", path, keywords={"_": None, "translate": (2,)}):
             template.add(message, locations=[(where, lineno)], auto_comments=comments, context=context)
     return template
 

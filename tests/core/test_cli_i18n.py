@@ -53,3 +53,29 @@ def test_an_unknown_language_is_one_line(capsys, tmp_path, sim_captures):
     err = capsys.readouterr().err.strip()
     assert err == "inspector: error: --lang: language 'fr' is not available (available: en, de, es)"
     assert not (tmp_path / "o").exists()
+
+
+def test_the_shift_in_the_operators_language(capsys, tmp_path):
+    """`inspector history OUTDIR --shift --lang de --pdf`: the lines and the PDF in German."""
+    from datetime import UTC, datetime
+
+    from pypdf import PdfReader
+
+    from inspector.history_store import record
+    from inspector.model import InspectionResult
+
+    now = datetime.now(UTC)
+    record(InspectionResult("p1", "r", "pass", None, {}), tmp_path, now=now)
+    record(InspectionResult("p2", "r", "error", "rig.json: not valid JSON", {}), tmp_path, now=now)
+    cell = tmp_path / "cell.toml"
+    cell.write_text('[shifts]\nstarts = ["00:00"]\nnames = ["day"]\ntimezone = "UTC"\n')
+    pdf = tmp_path / "schicht.pdf"
+    assert main(["history", str(tmp_path), "--shift", "--config", str(cell), "--lang", "de", "--pdf", str(pdf)]) == 0
+    out = capsys.readouterr().out
+    assert "Schicht day" in out and "2 geprüft: 1 IO, 0 NIO, 1 Störungen; Ausbeute 100,0 %" in out, out
+    assert "Störungen nach Grund:" in out
+    text = PdfReader(pdf).pages[0].extract_text()
+    for word in ("Schichtbericht", "geprüft", "Ausbeute", "100,0 %", "Störungen nach Grund", "keine Fehlstelle in dieser Schicht"):
+        assert word in text, word
+    assert main(["history", str(tmp_path), "--shift", "--lang", "xx"]) == 2
+    assert capsys.readouterr().err.strip().startswith("inspector: error: --lang: language 'xx' is not available")
