@@ -484,7 +484,13 @@ def print_shifts(outdir: str | Path, *, shifts: int = 1, config: str | Path | No
     except InputError as e:
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
-    print(format_shifts(counters))
+    global _translator
+    before, _translator = _translator, _headless  # the command's language (--lang), not a window's Qt translator
+    try:
+        text = format_shifts(counters)
+    finally:
+        _translator = before
+    print(text)
     if pdf is not None:
         from inspector.shift_report import render_shift_pdf
 

@@ -55,14 +55,18 @@ def test_an_unknown_language_is_one_line(capsys, tmp_path, sim_captures):
     assert not (tmp_path / "o").exists()
 
 
-def test_the_shift_in_the_operators_language(capsys, tmp_path):
-    """`inspector history OUTDIR --shift --lang de --pdf`: the lines and the PDF in German."""
+def test_the_shift_in_the_operators_language(capsys, tmp_path, monkeypatch):
+    """`inspector history OUTDIR --shift --lang de --pdf`: the lines and the PDF in German, even
+    in a process where a window installed its (English) Qt translator for the shift texts."""
     from datetime import UTC, datetime
 
     from pypdf import PdfReader
 
+    from inspector import shift
     from inspector.history_store import record
     from inspector.model import InspectionResult
+
+    monkeypatch.setattr(shift, "_translator", lambda context, text: text)  # as the GUI's install("en") leaves it
 
     now = datetime.now(UTC)
     record(InspectionResult("p1", "r", "pass", None, {}), tmp_path, now=now)
