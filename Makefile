@@ -12,7 +12,7 @@ $(STAMP): requirements.lock pyproject.toml scripts/sysdeps.sh
 	$(PY) -m pip install -q --disable-pip-version-check -r requirements.lock
 	@bash scripts/install-acquisition-deps.sh --python $(PY)
 	$(PY) -m pip install -q --disable-pip-version-check --no-deps --no-build-isolation -e .
-	$(PY) -m inspector.precompile
+	$(PY) -m inspector_tools.precompile
 	@touch $(STAMP)
 
 setup: $(STAMP)

@@ -2,8 +2,8 @@
 
 One file per cell holds what is the cell's, not a recipe's::
 
-    [server]   # inspector serve: the OPC UA endpoint, security, users (drivers/opcua/config.py)
-    [gui]      # the operator window: kiosk, language (inspector/gui/app.py)
+    [server]   # inspector serve: the OPC UA endpoint, security, users (inspector_frontends/opcua/config.py)
+    [gui]      # the operator window: kiosk, language (inspector_frontends/gui/app.py)
     [shifts]   # the shift times (inspector/shift.py)
 
 :func:`load_cell` reads and checks the file as a whole (size, UTF-8, TOML, known tables);

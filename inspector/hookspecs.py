@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from inspector.recipe import Recipe
     from inspector.session import RunSummary
 
-    from inspector.gui.window import MainWindow
+    from inspector_frontends.gui.window import MainWindow
     from inspector.pipeline import InspectionContext
     from inspector.registry import CommandRegistry, DriverRegistry, SettingsRegistry, StageRegistry, StageSpec
 
@@ -161,7 +161,7 @@ def inspector_gui_panel(window: MainWindow) -> tuple[str, object] | None:
 
     Called once when the operator window is built, on the GUI thread. ``window`` is the
     main window: its ``result_shown`` signal carries each result shown (a
-    :class:`inspector.gui.viewmodel.ResultView`), its ``run_finished`` signal each run's
+    :class:`inspector_frontends.gui.viewmodel.ResultView`), its ``run_finished`` signal each run's
     summary, and ``current_result`` is the result on screen. A plugin that raises, or returns something
     else than a title and a widget, is disabled with a warning naming it; the GUI goes on.
     """

@@ -723,7 +723,7 @@ def create_plugin_manager(
         Receives each plugin warning line (default: printed on stderr), once.
     only : iterable of str, optional
         Load just these entry points besides the built-ins (a plugin's own tests: see
-        :mod:`inspector.testing`); None loads every installed plugin.
+        :mod:`inspector_tools.testing`); None loads every installed plugin.
     files : iterable of paths
         Local ``.py`` modules to load as plugins (``inspector --plugin FILE.py``); a broken
         one raises :class:`~inspector.errors.PluginError` naming the file.

@@ -26,7 +26,7 @@ One envelope, several executors: :func:`run_batch` records every outcome
 (:func:`record_outcome`: the result folder, the CSV exports, ``inspector_on_result`` and its
 time) whatever produced it; an :class:`Executor` does only the executing step, turning
 acquisitions into unrecorded outcomes: :class:`LocalExecutor` loads and inspects them in this
-process (the default), :class:`inspector.distributed_run.DaskExecutor` on a Dask cluster.
+process (the default), :class:`inspector_frontends.distributed.DaskExecutor` on a Dask cluster.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ them; the GUI turns them into queued Qt signals from its worker thread. It is th
 envelope: the run hooks, the events, the verdict counts and the warnings (once per run) are
 the same whatever inspects the captures, this process (the default
 :class:`~inspector.runner.LocalExecutor`, in the calling thread) or another
-:class:`~inspector.runner.Executor` (a Dask cluster: :mod:`inspector.distributed_run`). Stage progress
+:class:`~inspector.runner.Executor` (a Dask cluster: :mod:`inspector_frontends.distributed`). Stage progress
 comes from the lifecycle hooks (``inspector_before_stage`` ...), which a front end observes
 by registering a plugin on :attr:`Session.pm`.
 

@@ -9,7 +9,7 @@ its three functions load the real module on their first call, so a user's script
 does call ``open3d.visualization.draw_plotly`` still gets it.
 
 Nothing here is imported by ``import inspector``; :func:`defer_open3d_plotly` is called by
-:func:`inspector.cli.main` (every front end: CLI, GUI, bench, Dask workers started by it).
+:func:`inspector_frontends.cli.main` (every front end: CLI, GUI, bench, Dask workers started by it).
 """
 
 from __future__ import annotations

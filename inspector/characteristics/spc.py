@@ -7,7 +7,7 @@ server and the acceptance scripts compute the same figures:
 * **process capability** (ISO 22514-2, normal distribution): ``Cp = (USL - LSL) / (6 s)``,
   ``Cpk = min(USL - mean, mean - LSL) / (3 s)``, with ``s`` the sample standard deviation
   (``ddof = 1``), and the count of values outside ``[LSL, USL]``;
-* **type-1 gauge study** (VDA 5 / Bosch booklet 10, as :func:`inspector.feasibility.stats.gauge_type1`):
+* **type-1 gauge study** (VDA 5 / Bosch booklet 10, as :func:`inspector_tools.feasibility.stats.gauge_type1`):
   repeated measurements of one part whose true value ``reference`` is known;
   ``Cg = k T / (L s)`` and ``Cgk = (k T / 2 - |mean - reference|) / (L s / 2)`` with the
   tolerance width ``T = USL - LSL``, ``k = 0.2`` and ``L = 6``. The gauge is capable for the

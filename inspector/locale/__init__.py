@@ -8,7 +8,7 @@ through :func:`number`: Python's format in English, the locale's (decimal comma,
 grouping, through Babel) in German and Spanish; Babel is imported only then.
 
 The language is process-wide: :func:`set_language` (the GUI's
-:func:`inspector.gui.i18n.install` calls it, so its PDF export is in the operator's
+:func:`inspector_frontends.gui.i18n.install` calls it, so its PDF export is in the operator's
 language), or :func:`using` for one piece of work. ``inspector report --lang LANG`` chooses
 it with :func:`choose`: ``--lang``, else ``$INSPECTOR_LANG``, else English (never the system
 locale: the command's lines are parsed by plant scripts).

@@ -54,7 +54,7 @@ when absent), so a rerun replaces it.
 Caching: a capture is written once (``truth/<name>/sweep.json`` records what it was made
 from). With ``--resume`` an inspection is reused when its result folder carries a
 ``sweep-run.json`` stamp of the same capture and the same product (a hash of the sources
-under ``inspector/`` (but its GUI), ``plugins/`` and ``drivers/``, ``pyproject.toml`` and the recipe), and its
+under ``inspector/`` (but its GUI), ``inspector_plugins/`` and ``inspector_drivers/``, ``pyproject.toml`` and the recipe), and its
 measurement when ``sweep-row.json`` matches that stamp and this instrument's sources too: an
 interrupted sweep continues where it stopped, and one rerun after the product changed
 inspects everything again. Exit status: 0 every row meets every bar,
@@ -217,7 +217,7 @@ def _sha_files(paths: list[Path]) -> str:
 
 def product_stamp(recipe: Path) -> str:
     """What an inspection's result depends on besides the capture: the product's sources
-    (``inspector/``, ``plugins/``, ``drivers/``: every ``.py`` but the GUI's, which ``inspector
+    (``inspector/``, ``inspector_plugins/``, ``inspector_drivers/``: every ``.py`` but the GUI's, which ``inspector
     run`` never imports), ``pyproject.toml`` and the recipe."""
     files = sorted(f for d in ("inspector", "plugins", "drivers") for f in (ROOT / d).rglob("*.py")
                    if "__pycache__" not in f.parts and not f.is_relative_to(ROOT / "inspector" / "gui"))

@@ -13,7 +13,7 @@ import pytest
 
 import foreign_capture as fc
 import pose_sweep as ps
-from inspector.testing import run_recipe
+from inspector_tools.testing import run_recipe
 
 RECIPE = Path(__file__).resolve().parents[2] / "recipes" / "default.toml"
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from inspector import approval, roles
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.recipe import load_recipe
 
 PASSWORD = "correct-horse-42"

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 CUBE = ROOT / "examples" / "calibration" / "charuco_cube.toml"

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 
 SIZE = 96
 CAMS = ("cam00", "cam01", "cam02")

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from inspector.calibration.command import write_rig
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.kernels.silhouette_fit import turn_camera
 from inspector.model import Camera, Rig
 

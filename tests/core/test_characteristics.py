@@ -230,7 +230,7 @@ def test_qif_results_document_is_valid(bracket, points, tmp_path, qif_schema):
 
 
 def test_features_command(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     assert main(["features", "builtin:cube30", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)

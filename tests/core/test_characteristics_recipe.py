@@ -13,7 +13,7 @@ import pytest
 from scipy.optimize import linprog
 
 from inspector.characteristics.spc import capability
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.errors import RecipeError
 from inspector.kernels import fits
 from inspector.recipe import load_recipe

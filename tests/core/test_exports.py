@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.outputs import read_ply
 
 DEFAULT = str(Path(__file__).resolve().parents[2] / "recipes" / "default.toml")

@@ -87,8 +87,8 @@ def test_duplicate_and_bad_kind_rejected():
 
 def test_import_inspector_is_light():
     code = (
-        "import sys, inspector, inspector.manager, inspector.recipe, inspector.runner, inspector.cli\n"
-        "import inspector.session, inspector.roles, inspector.recipe_form, inspector.gui, inspector.report, inspector.bench\n"
+        "import sys, inspector, inspector.manager, inspector.recipe, inspector.runner, inspector_frontends.cli\n"
+        "import inspector.session, inspector.roles, inspector.recipe_form, inspector_frontends.gui, inspector.report, inspector_tools.bench.command\n"
         "heavy = [m for m in ('PySide6', 'PyQt5', 'PyQt6', 'vtk', 'pyvista', 'pyvistaqt', 'harvesters', 'gi', 'open3d', 'cv2', 'trimesh') if m in sys.modules]\n"
         "print(','.join(heavy))\n"
     )

@@ -16,11 +16,11 @@ from types import SimpleNamespace
 import pytest
 
 from inspector import API_VERSION, hookimpl
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.errors import PluginError, RecipeError
 from inspector.manager import api_problem, create_plugin_manager
 from inspector.params import param
-from inspector.plugin_docs import fixture_names, hook_names, public_names, reference_markdown
+from inspector_tools.plugin_docs import fixture_names, hook_names, public_names, reference_markdown
 from inspector.recipe import parse_recipe
 from inspector.registry import CommandSpec
 
@@ -33,8 +33,8 @@ PY = sys.executable
 
 # --------------------------------------------------------------------------- reference
 def test_the_reference_in_the_repository_is_the_generated_one():
-    """docs/plugins.md is what `inspector plugins --reference` writes now: regenerate it
-    (`inspector plugins --reference docs/plugins.md`) after changing a hook, an API name or
+    """docs/plugins.md is what `inspector plugin reference` writes now: regenerate it
+    (`inspector plugin reference docs/plugins.md`) after changing a hook, an API name or
     a fixture."""
     assert REFERENCE.read_text(encoding="utf-8") == reference_markdown()
 
@@ -112,7 +112,7 @@ def test_a_plugin_for_another_api_registered_from_code_raises():
 
 # --------------------------------------------------------------------------- plugins, --block
 def _cli_json(*argv: str, env: dict[str, str] | None = None) -> tuple[dict, str]:
-    out = subprocess.run([PY, "-m", "inspector.cli", *argv, "plugins", "--json"], capture_output=True, text=True,
+    out = subprocess.run([PY, "-m", "inspector_frontends.cli", *argv, "plugins", "--json"], capture_output=True, text=True,
                          env=env)
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout), out.stderr
@@ -133,7 +133,8 @@ def test_plugins_lists_distribution_version_what_each_provides_and_blocked(capsy
     assert info["sim"]["status"] == "blocked" and info["sim"]["provides"]["driver"] == []
     assert info["genicam"]["status"] == "blocked"
     assert doc["blocked"] == ["genicam", "sim"] and "sim" not in doc["drivers"]
-    assert {"demo", "simulate"}.isdisjoint(doc["commands"]) and doc["commands"]["bench"]["plugin"] == "bench"
+    assert "simulate" not in doc["commands"] and doc["commands"]["bench"]["plugin"] == "bench"
+    assert doc["commands"]["demo"]["plugin"] == "demo" and doc["commands"]["plugin"]["plugin"] == "plugin"
     assert doc["api_version"] == API_VERSION
 
 
@@ -143,7 +144,7 @@ def test_plugins_in_words_marks_the_blocked(capsys, monkeypatch):
     out = capsys.readouterr().out
     assert re.search(r"^  aravis \(inspector-bcps [^)]*, built-in\)  \[BLOCKED\]", out, re.M)
     assert re.search(r"^  bench \(inspector-bcps [^)]*, built-in\)  \[BLOCKED\]", out, re.M)
-    assert re.search(r"^  sim \(inspector-bcps [^)]*\): driver sim; commands demo, simulate$", out, re.M)
+    assert re.search(r"^  sim \(inspector-bcps [^)]*\): driver sim; command simulate$", out, re.M)
     import os
 
     assert os.environ["INSPECTOR_BLOCK_PLUGINS"] == "aravis"  # --block does not outlive the command
@@ -317,7 +318,7 @@ def test_commands_come_from_the_hook_built_ins_included():
 
 
 def test_a_command_taking_a_core_name_is_left_out_with_a_warning(capsys):
-    from inspector.cli import build_parser
+    from inspector_frontends.cli import build_parser
 
     pm = create_plugin_manager(plugins=[_command_plugin("run", run=lambda a: 99)])
     parser = build_parser(pm)
@@ -327,7 +328,7 @@ def test_a_command_taking_a_core_name_is_left_out_with_a_warning(capsys):
 
 
 def test_a_command_whose_parser_raises_is_left_out_and_the_others_stay(capsys):
-    from inspector.cli import build_parser
+    from inspector_frontends.cli import build_parser
 
     def boom(sub):
         sub.add_parser("boom")

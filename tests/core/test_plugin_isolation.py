@@ -179,7 +179,7 @@ def check_warnings(lines: list[str], root: Path) -> None:
 def cli(root: Path, *args: str, env: dict[str, str] | None = None):
     environ = {k: v for k, v in os.environ.items() if k != "INSPECTOR_BLOCK_PLUGINS"}
     environ.update({"PYTHONPATH": str(root), **(env or {})})
-    return subprocess.run([sys.executable, "-m", "inspector.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "inspector_frontends.cli", *args], capture_output=True, text=True,
                           env=environ, timeout=300)
 
 

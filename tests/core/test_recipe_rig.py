@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT = (ROOT / "recipes" / "default.toml").read_text()

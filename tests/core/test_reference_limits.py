@@ -74,7 +74,7 @@ def test_every_format_is_counted_and_the_bound_is_overridable(tmp_path, monkeypa
 
 
 def test_run_with_a_huge_reference_is_a_command_error_in_one_line(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     n = 3_000_000
     stl = _sparse(tmp_path / "big.stl", bytes(80) + struct.pack("<I", n), 84 + 50 * n)

@@ -13,7 +13,7 @@ from babel.messages.pofile import read_po
 from pypdf import PdfReader
 
 from inspector import locale
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.locale import build
 from inspector.report import render_pdf
 

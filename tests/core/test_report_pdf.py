@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from pypdf import PdfReader
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.errors import InputError
 from inspector.report import render_pdf
 

@@ -111,7 +111,7 @@ def test_a_file_size_limit_names_the_file_and_the_capture_and_leaves_nothing(tmp
     recipe = tmp_path / "r.toml"
     recipe.write_text(RECIPE)
     out = tmp_path / "out"
-    args = [sys.executable, "-m", "inspector.cli", "run", str(recipe), "--capture", str(batch), "--out", str(out)]
+    args = [sys.executable, "-m", "inspector_frontends.cli", "run", str(recipe), "--capture", str(batch), "--out", str(out)]
     p = subprocess.run(args, capture_output=True, text=True, timeout=300, preexec_fn=_limited(200))
     assert p.returncode == 3, p.stderr
     lines = p.stdout.splitlines()
@@ -168,7 +168,7 @@ def test_a_full_disk_keeps_a_watched_capture_for_the_next_start(small_disk, tmp_
     """The hot folder on a full disk: the capture's line names it and the file, it stays in
     ``processing/`` (not filed in done/ without a result), and once there is room again the
     next start inspects it: one result, one history row."""
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     disk, fill = small_disk
     inbox, out = tmp_path / "inbox", disk / "out"

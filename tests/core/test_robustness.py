@@ -263,7 +263,7 @@ def test_recipe_files_with_nan_inf_or_huge_values_are_refused_on_load(tmp_path, 
 
 
 def test_recipe_check_exits_2_for_a_nan_cluster_radius(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     text = (Path(__file__).resolve().parents[2] / "recipes" / "default.toml").read_text()
     path = tmp_path / "nan.toml"
@@ -276,7 +276,7 @@ def test_recipe_check_exits_2_for_a_nan_cluster_radius(tmp_path, capsys):
 
 @pytest.mark.parametrize("option, value", [("--idle-exit", "inf"), ("--count", str(2**40))])
 def test_watch_options_are_checked_like_recipe_values(tmp_path, capsys, option, value):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     (tmp_path / "inbox").mkdir()
     recipe = tmp_path / "r.toml"
@@ -288,7 +288,7 @@ def test_watch_options_are_checked_like_recipe_values(tmp_path, capsys, option, 
 
 
 def test_a_deeply_nested_recipe_is_one_line(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     path = tmp_path / "deep.toml"
     path.write_text("x = " + "[" * 5000 + "]" * 5000 + "\n")
@@ -503,7 +503,7 @@ use = "segment.threshold"
 
 def test_run_capture_dotdot_writes_nothing_outside_out(tmp_path, capsys):
     """The issue's probe: --capture SOMEDIR/empty/.. once wrote OUTDIR/../result.json."""
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     work = tmp_path / "work"
     out = work / "out"
@@ -527,7 +527,7 @@ def test_run_capture_dotdot_writes_nothing_outside_out(tmp_path, capsys):
 
 
 def test_run_refuses_a_reserved_capture_name_and_inspects_the_rest(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     batch = tmp_path / "batch"
     _fake_capture(batch / "recipes")
@@ -549,7 +549,7 @@ def test_run_refuses_a_reserved_capture_name_and_inspects_the_rest(tmp_path, cap
 
 def test_a_lone_surrogate_part_id_is_an_error_with_its_history_row(tmp_path, capsys):
     """Issue 27 finding 8: ``"part_id": "\\ud800x"`` lost the history row and exited 0."""
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     batch = tmp_path / "batch"
     bad = _fake_capture(batch / "p1")

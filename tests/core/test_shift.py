@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.errors import InputError, RecipeError
 from inspector.shift import (
     ShiftSettings,

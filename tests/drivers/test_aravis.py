@@ -2,7 +2,7 @@
 
 The fixtures build a private network namespace (``ip netns add``), put 127.0.1.1..16 on its
 loopback, start one ``arv-fake-gv-camera-0.8`` per address, and run the client (the driver,
-through :mod:`inspector_drivers.aravis.harness`) in a subprocess inside that namespace
+through :mod:`inspector_tools.emulators.aravis_harness`) in a subprocess inside that namespace
 (``ip netns exec``), so the test can kill and restart cameras under a running client. The fake
 camera's Mono8 image depends only on the frame id (:func:`fake_pattern`), so every pixel of
 every frame is checked: a damaged frame must be an error, never an image.
@@ -26,7 +26,7 @@ import pytest
 from inspector.errors import InputError, RecipeError
 from inspector.params import build_params, describe_params
 from inspector_drivers.aravis import AravisParams
-from inspector_drivers.aravis.emulator import EmulatedRig, fake_pattern, missing_requirements, write_rig
+from inspector_tools.emulators.aravis import EmulatedRig, fake_pattern, missing_requirements, write_rig
 from inspector_drivers.aravis.gvcp import discover
 
 N = 16

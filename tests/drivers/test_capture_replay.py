@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 
 RECIPE = str(Path(__file__).with_name("small_sim.toml"))
 

@@ -135,7 +135,7 @@ def test_an_inbox_that_is_not_a_folder_is_a_command_error(tmp_path):
 def test_inspector_run_watch_inspects_what_another_program_drops_in(tmp_path, small_capture, capsys):
     # The end to end: `inspector run --watch` in this thread, a writer in another one that
     # drops two captures, the second one file by file with rig.json first (the unsafe order).
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out = tmp_path / "inbox", tmp_path / "out"
     inbox.mkdir()
@@ -174,7 +174,7 @@ def test_inspector_run_watch_inspects_what_another_program_drops_in(tmp_path, sm
     (["--watch", "{inbox}", "--idle-exit", "0", "--out", "{tmp}/o"], "--idle-exit: expected seconds > 0, got 0.0"),
 ])
 def test_watch_options_are_checked_before_anything_runs(args, message, tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox = tmp_path / "inbox"
     inbox.mkdir()
@@ -185,7 +185,7 @@ def test_watch_options_are_checked_before_anything_runs(args, message, tmp_path,
 
 
 def test_a_recipe_can_use_the_hotfolder_driver(tmp_path, small_capture):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox = tmp_path / "inbox"
     inbox.mkdir()
@@ -201,7 +201,7 @@ def test_ctrl_c_ends_a_watch_like_its_other_ends(tmp_path, small_capture, monkey
     # The watch is stopped while it waits (KeyboardInterrupt from its sleep): the summary and
     # the exit status of what was inspected, not an error.
     import inspector_drivers.replay.hotfolder as hf
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out = tmp_path / "inbox", tmp_path / "out"
     inbox.mkdir()
@@ -226,7 +226,7 @@ def test_ctrl_c_ends_a_watch_like_its_other_ends(tmp_path, small_capture, monkey
 
 
 def test_a_watch_that_sees_nothing_ends_quietly(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox = tmp_path / "inbox"
     inbox.mkdir()

@@ -104,7 +104,7 @@ def _watch(recipe: Path, inbox: Path, out: Path, *extra: str) -> list[str]:
 
 
 def test_a_second_watcher_on_the_same_inbox_is_refused_in_one_line(setup, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out, recipe, proto = setup
     _drop(proto, inbox, "p1")
@@ -125,7 +125,7 @@ def test_a_second_watcher_on_the_same_inbox_is_refused_in_one_line(setup, capsys
 
 def _start_watcher(recipe: Path, inbox: Path, out: Path, *extra: str) -> tuple[subprocess.Popen, queue.Queue]:
     """A real ``inspector run --watch`` process; its stdout lines arrive in the queue."""
-    proc = subprocess.Popen([sys.executable, "-m", "inspector.cli", *_watch(recipe, inbox, out, *extra)],
+    proc = subprocess.Popen([sys.executable, "-m", "inspector_frontends.cli", *_watch(recipe, inbox, out, *extra)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lines: queue.Queue = queue.Queue()
@@ -144,7 +144,7 @@ def _next_line(lines: queue.Queue, timeout: float = 120.0) -> str | None:
 
 
 def test_a_second_watcher_process_is_refused_while_the_first_runs(setup, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out, recipe, proto = setup
     proc, lines = _start_watcher(recipe, inbox, out, "--idle-exit", "60")
@@ -224,7 +224,7 @@ def _crash_while_claiming(monkeypatch):
                                    _crash_after_the_history_row, _crash_before_the_move_to_done],
                          ids=lambda f: f.__name__.strip("_"))
 def test_a_crash_at_each_step_of_the_hand_off_then_a_restart_inspects_each_capture_once(setup, monkeypatch, crash):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out, recipe, proto = setup
     names = ["p1", "p2", "p3"]
@@ -269,7 +269,7 @@ def test_kill_9_at_random_points_then_restart_inspects_each_capture_exactly_once
 
 
 def test_what_a_crash_left_in_processing_goes_first_and_a_settled_one_is_only_filed(setup, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out, recipe, proto = setup
     _drop(proto, inbox, "new")
@@ -292,7 +292,7 @@ def test_a_writer_that_stalls_inside_an_image_is_waited_for_not_failed(setup, ca
     """The issue's probe: a writer stalling 2 s inside an image turned a good part into an
     error that was never retried. Written in place, rig.json first (the unsafe order), with
     the default settle time of 0.5 s."""
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out, recipe, proto = setup
     png = (proto / "images" / "c0.png").read_bytes()
@@ -351,7 +351,7 @@ def test_a_writer_that_died_inside_an_image_is_an_error_after_give_up(setup):
 
 
 def test_a_capture_name_with_a_newline_is_one_line_and_the_others_go_on(setup, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     inbox, out, recipe, proto = setup
     _drop(proto, inbox, "a\nb")

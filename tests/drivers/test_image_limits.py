@@ -222,7 +222,7 @@ def test_is_complete_png(capture):
 
 
 def test_run_reports_each_bad_image_in_one_line_and_inspects_the_others(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     batch = tmp_path / "batch"
     good = _capture(batch / "good")
@@ -259,7 +259,7 @@ def test_sixteen_bombs_cost_no_memory(tmp_path):
     first and the comparison is made on what the images cost (15.6 GB before)."""
     recipe = tmp_path / "r.toml"
     recipe.write_text(RECIPE)
-    code = ("import resource, sys; from inspector.cli import main; rc = main(sys.argv[1:]); "
+    code = ("import resource, sys; from inspector_frontends.cli import main; rc = main(sys.argv[1:]); "
             "print('maxrss_kb', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)")
 
     def peak(name: str, image: bytes) -> tuple[float, list[str]]:

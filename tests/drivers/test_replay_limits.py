@@ -200,7 +200,7 @@ def test_the_hot_folder_waits_on_a_deep_or_huge_rig_json_without_crashing(tmp_pa
 
 def test_importers_and_report_bound_their_json(tmp_path):
     from inspector.report import _read_result
-    from inspector_drivers.replay.importers import _load_json_file
+    from inspector_tools.importers.datasets import _load_json_file
 
     deep = tmp_path / "transforms.json"
     deep.write_text(_nested(3000))

@@ -1,4 +1,4 @@
-"""The simulator's real-optics effects (drivers/sim/optics.py) and their SimParams (issue 26)."""
+"""The simulator's real-optics effects (inspector_drivers/sim/optics.py) and their SimParams (issue 26)."""
 
 from __future__ import annotations
 

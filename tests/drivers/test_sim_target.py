@@ -1,4 +1,4 @@
-"""Simulated captures of a ChArUco calibration target (``drivers/sim/target.py``).
+"""Simulated captures of a ChArUco calibration target (``inspector_drivers/sim/target.py``).
 
 Real images, fixed seeds: OpenCV's own ChArUco detector must find the corners where the
 true cameras project them.
@@ -197,7 +197,7 @@ def test_simulate_target_captures():
 
 
 def test_command_writes_capture_folders(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
     from inspector.capture_folder import read_capture
 
     out = tmp_path / "cal"
@@ -230,7 +230,7 @@ def test_command_writes_capture_folders(tmp_path, capsys):
     (["--part", "cube30"], "--part: not with --target"),
 ])
 def test_command_bad_target_exits_2_with_one_line(tmp_path, capsys, extra, message):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     bad = tmp_path / "bad.toml"
     bad.write_text('[target]\nkind = "charuco"\ndictionary = "DICT_5X5_1000"\nsquares = [5, 5]\n'
@@ -242,7 +242,7 @@ def test_command_bad_target_exits_2_with_one_line(tmp_path, capsys, extra, messa
 
 
 def test_command_target_options_only_with_target(tmp_path, capsys):
-    from inspector.cli import main
+    from inspector_frontends.cli import main
 
     assert main(["simulate", "--poses", "3", "--out", str(tmp_path / "o")]) == 2
     assert "--poses: only with --target" in capsys.readouterr().err

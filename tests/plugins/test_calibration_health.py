@@ -230,7 +230,7 @@ default = {{ lower = -{TOLERANCE}, upper = {TOLERANCE} }}
 def test_inspector_run_names_the_camera_and_the_history_plots_it(small_capture, tmp_path, capsys):
     import cv2
 
-    from inspector.cli import main
+    from inspector_frontends.cli import main
     from inspector.history_store import read_history
 
     recipe = tmp_path / "small.toml"

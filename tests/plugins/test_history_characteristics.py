@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.model import InspectionResult
 from inspector.history_store import record
 

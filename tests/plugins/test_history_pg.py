@@ -27,7 +27,7 @@ from urllib.parse import quote
 
 import pytest
 
-from inspector.cli import main
+from inspector_frontends.cli import main
 from inspector.errors import RecipeError
 from inspector.model import Defect, DeviationStats, EvaluationSummary, InspectionResult
 from inspector import history_store

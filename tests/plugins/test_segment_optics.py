@@ -109,7 +109,7 @@ def test_no_size_bias_through_the_whole_inspection(vignetted, tmp_path):
     """A real rendered capture, inspected end to end: the deviation mean of the nominal cube
     is near 0 with the empty field and with the model, and clearly negative with a global
     threshold."""
-    from inspector.testing import SMALL_RECIPE, run_recipe
+    from inspector_tools.testing import SMALL_RECIPE, run_recipe
 
     def dev(**seg):
         doc = {**SMALL_RECIPE, "stages": [{"use": "segment.threshold", "params": seg}, *SMALL_RECIPE["stages"][1:]]}
@@ -192,7 +192,7 @@ def test_dust_on_the_edges_puts_no_point_far_off_and_no_false_defect(tmp_path):
     camera): taken as they are, specks on the silhouettes' edges put BCPS points 1.5 mm
     off the nominal cube; with their contour points dropped, none is 0.4 mm off and the
     cube passes with no defect."""
-    from inspector.testing import SMALL_RECIPE, run_recipe
+    from inspector_tools.testing import SMALL_RECIPE, run_recipe
     from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, simulate
 

@@ -1,0 +1,2 @@
+"""Camera emulators for tests and benchmarks without hardware (a GigE Vision camera for Aravis).
+"""

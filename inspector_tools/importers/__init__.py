@@ -1,0 +1,2 @@
+"""``inspector import``: third-party datasets (Middlebury, NeRF, IDR, OpenCV) into capture folders.
+"""
