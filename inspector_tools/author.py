@@ -11,20 +11,18 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from inspector import hookimpl
-
-if TYPE_CHECKING:
-    from inspector.registry import CommandRegistry
+from inspector.registry import CommandRegistry, CommandSpec
+from inspector_tools.scaffold import add_arguments
+from inspector_tools.scaffold import run as new
 
 __all__ = ["add_parser", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
     """``inspector plugin new ...`` and ``inspector plugin reference [OUT.md]``."""
-    from inspector_tools.scaffold import add_arguments
-
     pg = sub.add_parser("plugin", help="plugin author's tools: `inspector plugin new NAME` writes a plugin package, "
                                        "`inspector plugin reference` the author's reference")
     psub = pg.add_subparsers(dest="plugin_command", required=True, parser_class=type(pg))
@@ -38,8 +36,6 @@ def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``inspector plugin new`` or ``inspector plugin reference``; the exit status."""
     if args.plugin_command == "new":
-        from inspector_tools.scaffold import run as new
-
         return new(args)
     from inspector_tools.plugin_docs import reference_markdown
 
@@ -55,6 +51,4 @@ def run(args: argparse.Namespace) -> int:
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
     """``inspector plugin``: a built-in plugin (entry point ``plugin``), like any command."""
-    from inspector.registry import CommandSpec
-
     registry.add(CommandSpec("plugin", add_parser, run, "the plugin author's tools (new package, reference)"))

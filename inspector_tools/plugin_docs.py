@@ -13,27 +13,24 @@ import inspect
 from collections.abc import Callable
 from typing import Any
 
+from inspector import API_VERSION, api, hookspecs
+from inspector_tools import testing
+
 __all__ = ["reference_markdown", "hook_names", "public_names", "fixture_names"]
 
 
 def hook_names() -> list[str]:
     """Every hook, in the order :mod:`inspector.hookspecs` defines them."""
-    from inspector import hookspecs
-
     return [n for n, f in vars(hookspecs).items() if n.startswith("inspector_") and callable(f)]
 
 
 def public_names() -> list[str]:
     """Every public name of :mod:`inspector.api`."""
-    from inspector import api
-
     return list(api.__all__)
 
 
 def fixture_names() -> list[str]:
     """The fixtures :mod:`inspector_tools.testing` ships (the private ones left out)."""
-    from inspector_tools import testing
-
     return [n for n, f in vars(testing).items() if not n.startswith("_") and hasattr(f, "_fixture_function_marker")
             or (not n.startswith("_") and type(f).__name__ == "FixtureFunctionDefinition")]
 
@@ -94,9 +91,6 @@ yields, or run a recipe that uses it with `inspector_run`.
 
 def reference_markdown() -> str:
     """The whole reference, as Markdown."""
-    from inspector import API_VERSION, api, hookspecs
-    from inspector_tools import testing
-
     out: list[str] = [
         "# Plugin reference",
         "",

@@ -19,7 +19,8 @@ once, each its share by the recorded compile times, then runs the small captures
 them (and compile whatever the list missed). Compiling is single-threaded in Numba: one
 process left a core idle for the 80 s the kernels take.
 
-Importing this module is cheap; the pipeline is imported by :func:`precompile`.
+Importing this module never imports Numba (the kernels are compiled when first called), so
+``--record`` still sets ``NUMBA_CACHE_DIR`` before Numba is imported.
 """
 
 from __future__ import annotations
@@ -35,6 +36,15 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+import inspector
+from inspector.capture_folder import read_capture, save_capture
+from inspector.params import build_params
+from inspector.registry import Acquisition
+from inspector.resources import recipe_path
+from inspector.runner import run_batch
+from inspector.session import Session
+from inspector_drivers.sim.simulate import SimParams, simulate
 
 __all__ = ["precompile", "first_run", "cold_start", "main"]
 
@@ -129,15 +139,6 @@ def precompile(work: Path, say: Callable[[str], None] = print, parallel: int = 2
         all were cached), ``compiled`` (those, as :data:`SIGNATURES` lists them) and
         ``verdicts`` (recipe -> capture -> verdict).
     """
-    from inspector.params import build_params
-    from inspector.resources import recipe_path
-    from inspector.runner import run_batch
-    from inspector.session import Session
-    from inspector.capture_folder import read_capture, save_capture
-    from inspector_drivers.sim.simulate import SimParams, simulate
-
-    from inspector.registry import Acquisition
-
     t0 = time.perf_counter()
     ahead = _compile_in_parallel(say, parallel) if parallel > 0 else 0
     notch = {"at": [15.0, 15.0, 0.0], "radius_mm": 1.5, "kind": "remove"}
@@ -158,7 +159,7 @@ def precompile(work: Path, say: Callable[[str], None] = print, parallel: int = 2
 
 
 #: The recorded kernels (``--record``): what :func:`compile_listed` compiles ahead of the run.
-SIGNATURES = Path(__file__).resolve().parent / "kernels" / "signatures.json"
+SIGNATURES = Path(inspector.__file__).resolve().parent / "kernels" / "signatures.json"
 
 
 def _dispatcher(module: str, name: str) -> Any:

@@ -31,6 +31,9 @@ import re
 import sys
 from pathlib import Path
 
+from inspector import API_VERSION, __version__
+from inspector.errors import RecipeError
+
 __all__ = ["add_arguments", "run", "write_plugin"]
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
@@ -46,8 +49,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from inspector.errors import RecipeError
-
     parts = {k for k in ("stage", "driver", "hook") if getattr(args, k)} or {"stage", "driver", "hook"}
     try:
         folder = write_plugin(args.name, Path(args.out), parts)
@@ -62,8 +63,6 @@ def run(args: argparse.Namespace) -> int:
 
 def write_plugin(name: str, out: Path, parts: set[str] | frozenset[str] = frozenset({"stage", "driver", "hook"})) -> Path:
     """Write the package ``out/name/``; its path. ValueError for a bad name or an existing folder."""
-    from inspector import API_VERSION, __version__
-
     if not _NAME.match(name):
         raise ValueError(f"{name!r} is not a lower-case identifier (letters, digits, _; e.g. 'acme')")
     unknown = set(parts) - {"stage", "driver", "hook"}

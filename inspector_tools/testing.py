@@ -55,6 +55,9 @@ from typing import TYPE_CHECKING, Any
 
 import pytest
 
+from inspector.errors import PluginError
+from inspector.params import build_params
+
 if TYPE_CHECKING:
     from inspector.manager import PluginManager
     from inspector.model import InspectionResult
@@ -97,7 +100,8 @@ def make_plugin_manager(names: Sequence[str] = (), modules: Sequence[object] = (
     ``strict``: a named plugin that is not installed, does not load or reports a problem
     raises :class:`~inspector.errors.PluginError` with its one-line message.
     """
-    from inspector.errors import PluginError
+    # Not at the top: inspector.manager loads numpy and inspector.model, which a pytest session
+    # that never uses these fixtures should not pay for (tests/tools/test_plugin_kit.py).
     from inspector.manager import create_plugin_manager
 
     lines: list[str] = []
@@ -117,8 +121,6 @@ def simulate_capture(folder: str | Path, pm: PluginManager | None = None, **para
     """Render one capture with the built-in ``sim`` driver (``params``: its parameters, over
     :data:`SMALL_CAPTURE`) and write it as a capture folder ``folder``; its path."""
     from inspector.api import save_capture
-    from inspector.params import build_params
-
     if pm is None:
         pm = make_plugin_manager()
     spec = pm.driver("sim")
@@ -287,8 +289,6 @@ def inspector_plugins_under_test(request: pytest.FixtureRequest) -> tuple[tuple[
 @pytest.fixture
 def inspector_pm(inspector_plugins_under_test: tuple[tuple[str, ...], tuple[object, ...]]) -> PluginManager:
     """A fresh isolated plugin manager: the built-ins plus the plugins under test."""
-    from inspector.errors import PluginError
-
     names, modules = inspector_plugins_under_test
     try:
         return make_plugin_manager(names, modules)

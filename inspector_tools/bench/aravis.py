@@ -16,6 +16,8 @@ import time
 from typing import Any
 
 from inspector.errors import CaptureError
+from inspector.params import build_params
+from inspector_drivers.aravis import AravisParams, open_driver
 
 __all__ = ["trigger_latency"]
 
@@ -60,9 +62,6 @@ def trigger_latency(
     """
     own = False
     if not hasattr(driver, "session"):
-        from inspector.params import build_params
-        from inspector_drivers.aravis import AravisParams, open_driver
-
         params = driver if isinstance(driver, AravisParams) else build_params(AravisParams, dict(driver), "trigger_latency")
         driver = open_driver(params)
         own = True

@@ -52,7 +52,22 @@ import tempfile
 import time
 from pathlib import Path
 from typing import Any
+
 from inspector.resources import recipe_path
+from inspector.session import Inspected, Session, Source
+from inspector_frontends.gui.app import display_problem
+from inspector_frontends.gui.viewmodel import point_arrays
+from inspector_tools.bench.common import default_reference, machine, recipes_dir, rss_mb, simulate_capture, write_figures
+
+try:  # the GUI packages are optional: `bench --gui` says so when they are missing
+    from PySide6.QtWidgets import QApplication
+
+    from inspector_frontends.gui.collector import GuiThreadCollector
+    from inspector_frontends.gui.window import MainWindow, freeze_startup_objects
+except ImportError as _e:
+    _GUI_MISSING: ImportError | None = _e
+else:
+    _GUI_MISSING = None
 
 __all__ = ["run_gui_bench", "OVERHEAD_TARGET_S", "STALL_TARGET_MS", "MEMORY_TARGET_MB", "DRAW_POINTS", "FIRST_SAMPLE"]
 
@@ -105,9 +120,7 @@ def _word(met: bool | None) -> str:
 def _recipe_path(args: argparse.Namespace) -> str:
     """``--recipe``, or recipes/demo.toml when it was left at ``bench``'s default (the
     default recipe names no reference; demo.toml names builtin:cube30)."""
-    from inspector_tools.bench import command as bench
-
-    if args.recipe == str(bench._recipes_dir() / "default.toml"):
+    if args.recipe == str(recipes_dir() / "default.toml"):
         return str(_DEMO_RECIPE)
     return str(args.recipe)
 
@@ -117,8 +130,6 @@ def _tiled(view: Any, n: int, seed: int = 0) -> Any:
     deviations and cameras with them, and what the worker computes from them
     (:func:`~inspector_frontends.gui.viewmodel.point_arrays`): the same part, drawn with ``n`` points."""
     import numpy as np
-
-    from inspector_frontends.gui.viewmodel import point_arrays
 
     m = len(view.points)
     if m == 0 or m >= n:
@@ -136,8 +147,6 @@ def _tiled(view: Any, n: int, seed: int = 0) -> Any:
 def _worker_points_s(view: Any, runs: int) -> float:
     """Median time of the per-point work the worker does before the verdict is sent
     (:func:`~inspector_frontends.gui.viewmodel.point_arrays`) for ``view``'s points."""
-    from inspector_frontends.gui.viewmodel import point_arrays
-
     times = []
     for _ in range(max(3, runs)):
         t = time.perf_counter()
@@ -304,15 +313,13 @@ def _snapshot(app: Any, window: Any) -> dict[str, Any]:
     """Resident memory and the window's object counts, after deferred deletions and a GC."""
     from PySide6.QtCore import QCoreApplication, QEvent, QObject
 
-    from inspector_tools.bench.command import _rss_mb
-
     for _ in range(3):
         QCoreApplication.sendPostedEvents(None, QEvent.Type.DeferredDelete)
         app.processEvents()
     gc.collect()
     p = window.view3d.plotter
     return {
-        "rss_mb": _rss_mb(),
+        "rss_mb": rss_mb(),
         "actors": len(p.renderer.actors),
         "scalar_bars": len(p.scalar_bars),
         "qobjects_in_window": len(window.findChildren(QObject)),
@@ -327,21 +334,17 @@ def _trimmed_rss() -> float | None:
     import ctypes
     import ctypes.util
 
-    from inspector_tools.bench.command import _rss_mb
-
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
         libc.malloc_trim(0)
     except (OSError, AttributeError):
         return None
-    return _rss_mb()
+    return rss_mb()
 
 
 def _headless(recipe: str, reference: str | None, folder: Path, out: Path, runs: int, say: Any) -> dict[str, Any]:
     """The same capture through a Session (no Qt): 1 warm-up + ``runs``; per run the
     timings' total and the wall time of ``Session.run`` (outputs and history row included)."""
-    from inspector.session import Inspected, Session, Source
-
     session = Session.open(recipe, out, reference=reference)
     got: list[Any] = []
     session.subscribe(lambda e: got.append(e.outcome.result) if isinstance(e, Inspected) else None)
@@ -432,8 +435,6 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
     ``first_sample``: inspections before the first memory sample (the test makes it small);
     ``draw_points``: points the trigger-to-shown figure is wanted with.
     """
-    from inspector_frontends.gui.app import display_problem
-
     problem = display_problem()
     if problem:
         print(f"inspector: error: bench --gui: {problem}", file=sys.stderr)
@@ -446,21 +447,16 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
         if not ok:
             print(f"inspector: error: bench --gui {what}", file=sys.stderr)
             return 2
-    try:
-        from PySide6.QtWidgets import QApplication
-
-        from inspector_frontends.gui.collector import GuiThreadCollector
-        from inspector_frontends.gui.window import MainWindow, freeze_startup_objects
-    except ImportError as e:
+    if _GUI_MISSING is not None:
+        e = _GUI_MISSING
         print(f"inspector: error: bench --gui: {e.name or e} is not installed (make setup installs the GUI packages)",
               file=sys.stderr)
         return 2
-    from inspector_tools.bench import command as bench
 
     say = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
-    machine = bench._machine()
+    figures_machine = machine()
     recipe = _recipe_path(args)
-    reference = args.reference or bench._default_reference(recipe, args.part)
+    reference = args.reference or default_reference(recipe, args.part)
 
     with tempfile.TemporaryDirectory(prefix="inspector-bench-gui-") as tmp:
         work = Path(args.keep) if args.keep else Path(tmp)
@@ -472,7 +468,7 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
             table = {"part": args.part, "seed": args.seed, "cameras": args.cameras, "width": args.size,
                      "height": args.size, "mm_per_px": args.mm_per_px}
             say(f"Simulating {args.part}: {args.cameras} cameras, {args.size}x{args.size} px at {args.mm_per_px} mm/px ...")
-            folder = bench.simulate_capture(work / "captures" / f"{args.part}-s{args.seed:04d}", table)
+            folder = simulate_capture(work / "captures" / f"{args.part}-s{args.seed:04d}", table)
             source = f"simulated: part {args.part}, seed {args.seed}, {args.mm_per_px} mm/px"
 
         say(f"Headless reference: {folder.name} through a Session, 1 + {args.runs} runs ...")
@@ -482,68 +478,79 @@ def run_gui_bench(args: argparse.Namespace, *, first_sample: int = FIRST_SAMPLE,
             print(f"inspector: error: bench --gui: the headless inspection failed: "
                   f"{bad[0]['error'] if bad else 'no run'}", file=sys.stderr)
             return 3
+        measured = _in_window(args, recipe, reference, folder, work, total, first_sample, draw_points, say)
+        if isinstance(measured, int):
+            return measured
+        reference, records, samples, draw, loop_s, rss_trace = measured
 
-        app = QApplication.instance() or QApplication([sys.argv[0]])
-        collector = GuiThreadCollector(app)  # as `inspector gui` runs: garbage collected on this thread only
-        window = MainWindow(Path(recipe), work / "gui", capture=folder, reference=reference,
-                            config_dir=work / "config")
-        harness = None
-        try:
-            if window.session is None:
-                print(f"inspector: error: bench --gui: recipe {recipe}: {window.recipe_error}", file=sys.stderr)
-                return 2
-            reference = window.session.recipe.reference or reference
-            window.resize(*WINDOW_SIZE)
-            window.show()
-            for _ in range(20):  # mapped and painted before the first trigger
-                app.processEvents()
-                time.sleep(0.01)
-            freeze_startup_objects(window)  # as `inspector gui` does once its window is up
-            harness = _Harness(app, window)
-            say(f"GUI: {total} inspections in one window (1 warm-up, {args.runs} timed, memory after "
-                f"{first_sample} and {total}) ...")
-            records: list[dict[str, Any]] = []
-            samples: dict[str, Any] = {}
-            rss_trace: list[tuple[int, float | None]] = []
-            t_start = time.perf_counter()
-            for i in range(1, total + 1):
-                rec = harness.inspect_once()
-                rec["index"] = i
-                records.append(rec)
-                if rec.get("error") or rec.get("verdict") in (None, "error", "aborted"):
-                    print(f"inspector: error: bench --gui: inspection {i} failed: {rec.get('error')}", file=sys.stderr)
-                    return 3
-                if i == 1 or i <= 1 + args.runs or i % 20 == 0 or i == total:
-                    say(f"  {'warm-up' if i == 1 else f'{i}/{total}'}: {rec['verdict']}, shown "
-                        f"{rec['trigger_to_shown_s']:.3f} s after the trigger (cycle {rec['cycle_s']:.3f} s, "
-                        f"{rec['points']} points), worst tick gap {rec['worst_gap_ms']:.0f} ms")
-                rss_trace.append((i, bench._rss_mb()))
-                if i in (first_sample, total):
-                    # The figure first, then the live memory (glibc's free heap given back).
-                    samples["first" if i == first_sample else "last"] = {
-                        "after": i, **_snapshot(app, window), "rss_after_malloc_trim_mb": _trimmed_rss()}
-            loop_s = time.perf_counter() - t_start
-            say(f"Drawing cost: show_result with {draw_points} points against the real view ...")
-            draw = _draw_cost(harness, harness.view, draw_points, args.runs)
-        finally:
-            if harness is not None:
-                harness.close()
-            window.close()
-            for _ in range(3):
-                app.processEvents()
-            window.deleteLater()
-            app.processEvents()
-            collector.uninstall()
-            collector.deleteLater()
-            gc.unfreeze()  # the process as it was (a test suite's leak checks see every object again)
-
-    doc = _document(args, machine, recipe, reference, folder, source, headless, records, samples, draw,
+    doc = _document(args, figures_machine, recipe, reference, folder, source, headless, records, samples, draw,
                     first_sample, draw_points, loop_s, rss_trace)
     if not args.quiet:
         _print_report(doc)
     if args.json:
-        say(f"\n  figures written to {bench.write_figures(args.json, doc)}")
+        say(f"\n  figures written to {write_figures(args.json, doc)}")
     return 0
+
+
+def _in_window(args: argparse.Namespace, recipe: str, reference: str | None, folder: Path, work: Path, total: int,
+               first_sample: int, draw_points: int, say: Any) -> int | tuple[Any, ...]:
+    """``total`` inspections in one MainWindow, then the drawing cost: an exit status (2 no
+    session, 3 an inspection failed), or (reference, records, memory samples, drawing cost,
+    seconds of the inspections, RSS trace)."""
+    app = QApplication.instance() or QApplication([sys.argv[0]])
+    collector = GuiThreadCollector(app)  # as `inspector gui` runs: garbage collected on this thread only
+    window = MainWindow(Path(recipe), work / "gui", capture=folder, reference=reference,
+                        config_dir=work / "config")
+    harness = None
+    try:
+        if window.session is None:
+            print(f"inspector: error: bench --gui: recipe {recipe}: {window.recipe_error}", file=sys.stderr)
+            return 2
+        reference = window.session.recipe.reference or reference
+        window.resize(*WINDOW_SIZE)
+        window.show()
+        for _ in range(20):  # mapped and painted before the first trigger
+            app.processEvents()
+            time.sleep(0.01)
+        freeze_startup_objects(window)  # as `inspector gui` does once its window is up
+        harness = _Harness(app, window)
+        say(f"GUI: {total} inspections in one window (1 warm-up, {args.runs} timed, memory after "
+            f"{first_sample} and {total}) ...")
+        records: list[dict[str, Any]] = []
+        samples: dict[str, Any] = {}
+        rss_trace: list[tuple[int, float | None]] = []
+        t_start = time.perf_counter()
+        for i in range(1, total + 1):
+            rec = harness.inspect_once()
+            rec["index"] = i
+            records.append(rec)
+            if rec.get("error") or rec.get("verdict") in (None, "error", "aborted"):
+                print(f"inspector: error: bench --gui: inspection {i} failed: {rec.get('error')}", file=sys.stderr)
+                return 3
+            if i == 1 or i <= 1 + args.runs or i % 20 == 0 or i == total:
+                say(f"  {'warm-up' if i == 1 else f'{i}/{total}'}: {rec['verdict']}, shown "
+                    f"{rec['trigger_to_shown_s']:.3f} s after the trigger (cycle {rec['cycle_s']:.3f} s, "
+                    f"{rec['points']} points), worst tick gap {rec['worst_gap_ms']:.0f} ms")
+            rss_trace.append((i, rss_mb()))
+            if i in (first_sample, total):
+                # The figure first, then the live memory (glibc's free heap given back).
+                samples["first" if i == first_sample else "last"] = {
+                    "after": i, **_snapshot(app, window), "rss_after_malloc_trim_mb": _trimmed_rss()}
+        loop_s = time.perf_counter() - t_start
+        say(f"Drawing cost: show_result with {draw_points} points against the real view ...")
+        draw = _draw_cost(harness, harness.view, draw_points, args.runs)
+    finally:
+        if harness is not None:
+            harness.close()
+        window.close()
+        for _ in range(3):
+            app.processEvents()
+        window.deleteLater()
+        app.processEvents()
+        collector.uninstall()
+        collector.deleteLater()
+        gc.unfreeze()  # the process as it was (a test suite's leak checks see every object again)
+    return reference, records, samples, draw, loop_s, rss_trace
 
 
 def _document(args: argparse.Namespace, machine: dict[str, Any], recipe: str, reference: str | None, folder: Path,

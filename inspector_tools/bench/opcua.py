@@ -40,6 +40,21 @@ import time
 from pathlib import Path
 from typing import Any
 
+from inspector.errors import RecipeError
+from inspector.resources import recipe_path
+from inspector.session import Inspected, Session, Source
+from inspector_frontends.opcua import model
+from inspector_frontends.opcua.config import ServerSettings
+from inspector_tools.bench.common import recipes_dir, write_figures
+
+try:  # asyncua is optional: run_opcua_bench says so when it is missing
+    from inspector_frontends.opcua.security import CLIENT_URI, make_pki
+    from inspector_frontends.opcua.server import InspectorServer, ServerThread
+except ImportError as _e:
+    _OPCUA_MISSING: ImportError | None = _e
+else:
+    _OPCUA_MISSING = None
+
 __all__ = ["LATENCY_TARGET_S", "run_opcua_bench"]
 
 #: Median client-side trigger-to-verdict minus median headless cycle, seconds.
@@ -64,10 +79,7 @@ def _free_port() -> int:
 
 
 def _recipe(args: argparse.Namespace) -> str:
-    from inspector_tools.bench import command as bench
-    from inspector.resources import recipe_path
-
-    if args.recipe == str(bench._recipes_dir() / "default.toml"):
+    if args.recipe == str(recipes_dir() / "default.toml"):
         return str(recipe_path("demo.toml"))
     return str(args.recipe)
 
@@ -76,15 +88,11 @@ class Headless:
     """The recipe through a plain Session: :meth:`part` runs one capture, returns its record."""
 
     def __init__(self, recipe: str, out: Path) -> None:
-        from inspector.session import Inspected, Session
-
         self.session = Session.open(recipe, out)
         self._got: list[Any] = []
         self.session.subscribe(lambda e: self._got.append(e.outcome.result) if isinstance(e, Inspected) else None)
 
     def part(self) -> dict[str, Any]:
-        from inspector.session import Source
-
         self._got.clear()
         t0 = time.perf_counter()
         self.session.run(Source(limit=1))
@@ -100,9 +108,6 @@ async def _client(url: str, pki: Path, user: str, password: str, parts: int, hea
     from asyncua import Client, ua
     from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-    from inspector_frontends.opcua import model
-    from inspector_frontends.opcua.security import CLIENT_URI
-
     client = Client(url, timeout=30)
     client.application_uri = CLIENT_URI
     await client.set_security(SecurityPolicyBasic256Sha256, str(pki / "plc-cert.der"), str(pki / "plc-key.pem"),
@@ -114,9 +119,9 @@ async def _client(url: str, pki: Path, user: str, password: str, parts: int, hea
     heads: list[dict[str, Any]] = []
     try:
         idx = await client.get_namespace_index(model.NAMESPACE)
-        node = {n: client.get_node(ua.NodeId(model.node_id(n), idx))
+        node = {n: client.get_node(ua.NodeId(ua.String(model.node_id(n)), ua.Int16(idx)))
                 for n in ("ResultCounter", "Verdict", "ResultPartId", "CycleTime", "LastResult", "Ready")}
-        obj = client.get_node(ua.NodeId(model.OBJECT, idx))
+        obj = client.get_node(ua.NodeId(ua.String(model.OBJECT), ua.Int16(idx)))
         changed = asyncio.Event()
         latest = {"counter": await node["ResultCounter"].read_value()}
 
@@ -160,10 +165,8 @@ def measure(recipe: str, work: Path, parts: int, say: Any) -> tuple[list[dict[st
     """``1 + parts`` parts each way, alternating: (headless records, served records)."""
     import secrets
 
-    from inspector_frontends.opcua.config import ServerSettings
-    from inspector_frontends.opcua.security import make_pki
-    from inspector_frontends.opcua.server import InspectorServer, ServerThread
-
+    if _OPCUA_MISSING is not None:
+        raise _OPCUA_MISSING
     make_pki(work / "pki")
     user, password = "bench", secrets.token_urlsafe(16)
     url = f"opc.tcp://127.0.0.1:{_free_port()}"
@@ -193,8 +196,6 @@ def measure(recipe: str, work: Path, parts: int, say: Any) -> tuple[list[dict[st
 
 def run_opcua_bench(args: argparse.Namespace) -> int:
     """``inspector bench --opcua``; see the module docstring."""
-    from inspector.errors import RecipeError
-
     parts = int(args.opcua_parts)
     if parts < 1:
         raise RecipeError("bench --opcua-parts: expected a number >= 1")
@@ -257,8 +258,6 @@ def run_opcua_bench(args: argparse.Namespace) -> int:
               f"{'MET' if doc['target']['met'] else 'NOT MET'}")
         print(f"    load average {doc['machine']['load_before']} -> {doc['machine']['load_after']}")
     if args.json:
-        from inspector_tools.bench.command import write_figures
-
         say(f"\n  figures written to {write_figures(args.json, {'opcua': doc, 'served': srv, 'headless': head})}")
     if bad or wrong:
         print(f"inspector: error: bench --opcua: {len(bad)} inspections failed, {len(wrong)} results for another "

@@ -34,7 +34,9 @@ from typing import Any
 
 import numpy as np
 
+from inspector_drivers.aravis import available
 from inspector_drivers.aravis.gvcp import discover
+from inspector_drivers.sim.rig import sphere_rig
 
 __all__ = [
     "FAKE_CAMERA",
@@ -60,8 +62,6 @@ def missing_requirements(client: bool = True) -> str:
     if missing:
         return f"missing {', '.join(missing)} (apt-get install iproute2 aravis-tools)"
     if client:
-        from inspector_drivers.aravis import available
-
         why = available()
         if why:
             return why
@@ -78,8 +78,6 @@ def fake_pattern(width: int, height: int, frame_id: int, exposure_us: float = 10
 
 def write_rig(path: str | os.PathLike[str], n: int, width: int = 512, height: int = 512) -> Any:
     """A rig.json for ``n`` emulated cameras (cam00.. on a sphere, ``width`` x ``height``)."""
-    from inspector_drivers.sim.rig import sphere_rig
-
     rig = sphere_rig(n, radius_mm=400.0, width=width, height=height, mm_per_px=0.1 * 1024 / max(width, height))
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)

@@ -29,20 +29,24 @@ import json
 import sys
 import time
 import traceback
-from typing import TYPE_CHECKING, Any
+from collections.abc import Iterator
+from typing import Any
 
-if TYPE_CHECKING:
-    from inspector.manager import PluginManager
+import inspector_drivers.aravis as aravis_mod
+import inspector_drivers.genicam as genicam_mod
+from inspector.errors import InspectorError
+from inspector.manager import PluginManager, create_plugin_manager
+from inspector.params import build_params
+from inspector.registry import Acquisition
+from inspector_drivers import capture_cmd
+from inspector_tools.bench.aravis import trigger_latency
+from inspector_tools.emulators.aravis import fake_pattern
 
 __all__ = ["plugin_manager", "main"]
 
 
 def plugin_manager() -> PluginManager:
     """The entry-point plugin manager, plus the hardware drivers if not yet registered."""
-    import inspector_drivers.aravis as aravis_mod
-    import inspector_drivers.genicam as genicam_mod
-    from inspector.manager import create_plugin_manager
-
     pm = create_plugin_manager()
     extra = [m for m, name in ((aravis_mod, "aravis"), (genicam_mod, "genicam")) if name not in pm.drivers]
     if extra:
@@ -63,8 +67,6 @@ def _frame_report(cap: Any, pattern: bool) -> dict[str, Any]:
             "sum": int(img.sum()),
         }
         if pattern:
-            from inspector_tools.emulators.aravis import fake_pattern
-
             ok = img.ndim == 2 and img.dtype.name == "uint8" and info.get("frame_id") is not None
             rep["pattern_ok"] = bool(ok and (img == fake_pattern(img.shape[1], img.shape[0], info["frame_id"])).all())
         out[cam] = rep
@@ -73,12 +75,11 @@ def _frame_report(cap: Any, pattern: bool) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
-    from inspector.errors import InspectorError
-    from inspector.params import build_params
-
     pm = plugin_manager()
-    driver = None
-    acquisitions = None
+    # The aravis or genicam driver: its ``session`` (trigger mode, triggers) is more than the
+    # Driver protocol has.
+    driver: Any = None
+    acquisitions: Iterator[Acquisition] | None = None
 
     def answer(obj: dict[str, Any]) -> None:
         sys.stdout.write(json.dumps(obj, default=str) + "\n")
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
                 acquisitions = iter(driver.acquire())
                 answer({"ok": True, "open_s": time.perf_counter() - t0, "trigger_mode": driver.session.trigger_mode})
             elif cmd == "trigger":
-                if driver is None:
+                if driver is None or acquisitions is None:  # both set by "open"
                     raise RuntimeError("no driver open")
                 acq = next(acquisitions, None)
                 if acq is None:
@@ -122,15 +123,11 @@ def main(argv: list[str] | None = None) -> int:
                     }
                 )
             elif cmd == "latency":
-                from inspector_tools.bench.aravis import trigger_latency
-
                 if driver is None:
                     raise RuntimeError("no driver open")
                 stats = trigger_latency(driver, triggers=int(req.get("triggers", 50)), warmup=int(req.get("warmup", 3)))
                 answer({"ok": True, **stats})
             elif cmd == "capture":
-                from inspector_drivers import capture_cmd
-
                 ap = argparse.ArgumentParser(prog="inspector")
                 capture_cmd.add_parser(ap.add_subparsers(dest="command"))
                 args = ap.parse_args(["capture", *req["argv"]])

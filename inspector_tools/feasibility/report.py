@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inspector.outputs import write_ply
 from inspector_tools.feasibility.analysis import FRR_MAX, pod_words
 from inspector_tools.feasibility.stats import CG_MIN
 
@@ -295,8 +296,6 @@ def write_map_ply(res: Results, path: Path) -> Path:
     element and region."""
     from matplotlib import colormaps
 
-    from inspector.outputs import write_ply
-
     m = res.map
     e = m.vertex_element
     obs = res.observability[e]
@@ -342,6 +341,12 @@ def _safe(name: str) -> str:
 
 
 def _blocks(res: Results, files: dict[str, Any]) -> list[tuple]:
+    """The report's blocks (markdown and HTML are made from them): the summary, the verdict per
+    region and the observability, then the POD and the false rejects, then the gauge study and the files."""
+    return _summary_blocks(res, files) + _detection_blocks(res, files) + _gauge_blocks(res, files)
+
+
+def _summary_blocks(res: Results, files: dict[str, Any]) -> list[tuple]:
     st = res.study
     cfg = st.config
     nom = res.nominal
@@ -387,7 +392,12 @@ def _blocks(res: Results, files: dict[str, Any]) -> list[tuple]:
     B.append(("img", files["error"].name, "measurement error map"))
     B.append(("p", f"Distance of the BCPS points of the nominal part to the true surface: mean "
                    f"{_mm(nom['bcps_truth_mean_mm'])} mm over all captures ({_mm(nom['bcps_truth_mean_mm'] / st.footprint_mm)} px)."))
+    return B
 
+
+def _detection_blocks(res: Results, files: dict[str, Any]) -> list[tuple]:
+    nom = res.nominal
+    B: list[tuple] = []
     B.append(("h2", "Probability of detection"))
     head = ["region", "kind", "defects", "found", "a50, mm", "a90, mm", "a90/95", "note"]
     rows = []
@@ -417,7 +427,13 @@ def _blocks(res: Results, files: dict[str, Any]) -> list[tuple]:
                       f"{nom['pose_misfit_mm']['max_posed']:.3g} mm). " if mis else "No capture was misaligned. ")
                    + "Each capture's verdict, and the defects that rejected it, are in `simulations.csv`; "
                    "`--keep-captures K` writes the first K captures, which `inspector run` inspects to the same verdicts."))
+    return B
 
+
+def _gauge_blocks(res: Results, files: dict[str, Any]) -> list[tuple]:
+    nom = res.nominal
+    mis = nom["misaligned"]
+    B: list[tuple] = []
     B.append(("h2", "Gauge study (type 1)"))
     head = ["region", "band", "points", "bias, mm", "s, mm", "Cg", "Cgk", "region mean ± sd, mm", "p01 ± sd, mm",
             "p99 ± sd, mm", "verdict repeatability"]

@@ -7,8 +7,8 @@ recipe's own pipeline inspects every capture (:func:`inspector.runner.inspect_ca
 probability of detection per region and kind of defect, the false-reject rate and a type-1
 gauge study; :mod:`.report` writes them.
 
-Simulations run on Dask as ``inspector experiment``'s do (its :func:`~inspector_tools.experiment.execute`
-and :func:`~inspector_tools.experiment.start_client`): a LocalCluster by default, an existing cluster
+Simulations run on Dask as ``inspector experiment``'s do (its :func:`~inspector_tools.experiment_execution.execute`
+and :func:`~inspector_tools.experiment_execution.start_client`): a LocalCluster by default, an existing cluster
 with ``--scheduler``, a progress bar. Each simulation's seed is derived from the study's seed,
 its kind and its index, so the same command gives the same numbers; each one's record is kept
 in ``DIR/sims/`` as it arrives, and a re-run (after an interrupt, or with more poses) runs only
@@ -39,12 +39,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from inspector import hookimpl
+from inspector.errors import CaptureError, InspectorError, RecipeError, ReferenceMeshError
+from inspector.manager import create_plugin_manager
+from inspector.params import build_params
+from inspector.reference import Reference
+from inspector.registry import CommandRegistry, CommandSpec
+from inspector.resources import recipe_path
+from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
+from inspector_plugins.evaluate import capability_warning
+from inspector_tools.experiment_cases import PRESETS
+from inspector_tools.experiment_execution import execute, start_client
 
 if TYPE_CHECKING:
     from inspector_tools.feasibility.surface import Regions, SurfaceMap
     from inspector.model import Rig
     from inspector.recipe import Recipe
-    from inspector.registry import CommandRegistry
 
 __all__ = ["Study", "add_parser", "run", "prepare", "make_specs", "run_sim", "SimCache", "sim_seed",
            "rig_blind_cameras"]
@@ -121,7 +130,6 @@ def sim_seed(seed: int, kind: str, index: int) -> int:
 
 
 def _resolve_reference(text: str) -> str:
-    from inspector.errors import RecipeError
     from inspector.parts import part_names
 
     if text.startswith("builtin:"):
@@ -188,7 +196,6 @@ def _sim_table(recipe: Recipe) -> dict[str, Any]:
 
 
 def _rig_file(path: str, flag: str) -> tuple[Rig, str]:
-    from inspector.errors import CaptureError, RecipeError
     from inspector.capture_folder import read_rig
 
     p = Path(path).expanduser()
@@ -202,16 +209,9 @@ def _rig_file(path: str, flag: str) -> tuple[Rig, str]:
 
 def prepare(args: argparse.Namespace) -> Study:
     """Validate the command's inputs; RecipeError in one line for anything wrong (exit 2)."""
-    from inspector.errors import RecipeError, ReferenceMeshError
-    from inspector_tools.experiment import PRESETS
-    from inspector_tools.feasibility.surface import PATCHES, Regions, build_map, default_element_mm
-    from inspector.manager import create_plugin_manager
-    from inspector.params import build_params
+    from inspector_tools.feasibility.surface import build_map, default_element_mm
     from inspector.parts import load_reference
     from inspector.recipe import parse_recipe, read_recipe_toml
-    from inspector.resources import recipe_path
-    from inspector_drivers.sim.simulate import SimParams, sim_rig
-    from inspector_plugins.evaluate import capability_warning
 
     for flag, value, least in (("--poses", args.poses, 2), ("--defect-captures", args.defect_captures, 0),
                                ("--defects-per-capture", args.defects_per_capture, 1), ("--workers", args.workers, 1),
@@ -240,49 +240,9 @@ def prepare(args: argparse.Namespace) -> Study:
     cluster_mm = float(getattr(evaluate.params, "cluster_radius_mm", 1.0))
 
     tol = recipe.tolerance
-    if tol.regions:
-        regions = Regions(("default", *(r.name for r in tol.regions)),
-                          tuple((r.box_min, r.box_max) for r in tol.regions),
-                          ((tol.default.lower, tol.default.upper), *((r.band.lower, r.band.upper) for r in tol.regions)))
-    else:
-        regions = Regions(PATCHES, (), ((tol.default.lower, tol.default.upper),) * len(PATCHES))
-    for name in args.region or ():
-        if name not in regions.names:
-            have = (f"its regions: {', '.join(regions.names[1:])}" if not regions.patches
-                    else f"it has no regions; the surface patches are {', '.join(PATCHES)}")
-            raise RecipeError(f"--region {name!r}: no such region in {rpath.name} ({have})")
+    regions = _regions(recipe, args.region, rpath)
 
-    sim = _sim_table(recipe)
-    if args.quick:
-        if args.rig:
-            raise RecipeError("--quick and --rig: --quick is the simulated rig at 512x512 px, 0.2 mm/px; give one")
-        sim |= {k: v for k, v in PRESETS["quick"]["rig"].items()}
-    rig_json = None
-    drv_rig = str(getattr(recipe.driver.params, "rig", "") or "")
-    if args.rig:
-        rig, where = _rig_file(args.rig, "--rig")
-        rig_label, rig_json = f"rig {where}", rig.to_json()
-    elif drv_rig:
-        rig, where = _rig_file(drv_rig, f"{rpath.name}: driver.params.rig")
-        rig_label, rig_json = f"the recipe's rig {where}", rig.to_json()
-    else:
-        try:
-            p0 = build_params(SimParams, {**sim, "part": _part_arg(ref)}, f"{rpath.name}: driver.params")
-        except ValueError as e:
-            raise RecipeError(f"{rpath.name}: driver.params: {e}") from None
-        rig = sim_rig(p0)
-        rig_label = (f"the simulated rig ({p0.cameras} cameras, {p0.width}x{p0.height} px, {p0.mm_per_px:g} mm/px at the "
-                     f"centre{', from the recipe' if recipe.driver.spec.name == 'sim' else ''})")
-    sim_offset = float(sim.get("offset_mm", SimParams.offset_mm))
-    radius = float(np.max(np.linalg.norm(V + offset, axis=1))) + sim_offset
-    blind = rig_blind_cameras(rig, radius)
-    if blind:
-        meet = _axes_meet(rig)
-        hint = (f"; its cameras' axes meet near ({meet[0]:.0f}, {meet[1]:.0f}, {meet[2]:.0f}) mm, the part falls through "
-                "the origin" if np.linalg.norm(meet) > radius else "; aim them at the rig centre or widen their view")
-        raise RecipeError(f"{rig_label} does not see the part: camera(s) {', '.join(blind[:6])}"
-                          f"{' ...' if len(blind) > 6 else ''} cannot hold its {2 * radius:.0f} mm bounding sphere "
-                          f"(the part in any pose, up to {sim_offset:g} mm off the rig centre) in their image{hint}")
+    sim, rig, rig_label, rig_json = _study_rig(args, recipe, ref, rpath, V, offset)
     footprint = float(rig.footprint_mm())
     warning = capability_warning(tol, footprint)
     if warning is not None:
@@ -326,6 +286,65 @@ def prepare(args: argparse.Namespace) -> Study:
     }
     key = hashlib.sha256(json.dumps(_jsonable(config), sort_keys=True).encode()).hexdigest()[:16]
     return Study(config, key, recipe, rig, regions, smap, V, F, offset, rig_label)
+
+
+
+def _regions(recipe: Recipe, wanted: Iterable[str] | None, rpath: Path) -> Regions:
+    """The recipe's tolerance regions (or the six surface patches when it has none); RecipeError
+    for a ``--region`` it does not have."""
+    from inspector_tools.feasibility.surface import PATCHES, Regions
+
+    tol = recipe.tolerance
+    if tol.regions:
+        regions = Regions(("default", *(r.name for r in tol.regions)),
+                          tuple((r.box_min, r.box_max) for r in tol.regions),
+                          ((tol.default.lower, tol.default.upper), *((r.band.lower, r.band.upper) for r in tol.regions)))
+    else:
+        regions = Regions(PATCHES, (), ((tol.default.lower, tol.default.upper),) * len(PATCHES))
+    for name in wanted or ():
+        if name not in regions.names:
+            have = (f"its regions: {', '.join(regions.names[1:])}" if not regions.patches
+                    else f"it has no regions; the surface patches are {', '.join(PATCHES)}")
+            raise RecipeError(f"--region {name!r}: no such region in {rpath.name} ({have})")
+    return regions
+
+
+def _study_rig(args: argparse.Namespace, recipe: Recipe, ref: str, rpath: Path, V: np.ndarray,
+               offset: np.ndarray) -> tuple[dict[str, Any], Rig, str, Any]:
+    """The simulator table, the rig (``--rig``, the recipe's, or the simulated one), its label
+    and JSON (None for the simulated rig); RecipeError when its cameras cannot see the part."""
+    sim = _sim_table(recipe)
+    if args.quick:
+        if args.rig:
+            raise RecipeError("--quick and --rig: --quick is the simulated rig at 512x512 px, 0.2 mm/px; give one")
+        sim |= {k: v for k, v in PRESETS["quick"]["rig"].items()}
+    rig_json = None
+    drv_rig = str(getattr(recipe.driver.params, "rig", "") or "")
+    if args.rig:
+        rig, where = _rig_file(args.rig, "--rig")
+        rig_label, rig_json = f"rig {where}", rig.to_json()
+    elif drv_rig:
+        rig, where = _rig_file(drv_rig, f"{rpath.name}: driver.params.rig")
+        rig_label, rig_json = f"the recipe's rig {where}", rig.to_json()
+    else:
+        try:
+            p0 = build_params(SimParams, {**sim, "part": _part_arg(ref)}, f"{rpath.name}: driver.params")
+        except ValueError as e:
+            raise RecipeError(f"{rpath.name}: driver.params: {e}") from None
+        rig = sim_rig(p0)
+        rig_label = (f"the simulated rig ({p0.cameras} cameras, {p0.width}x{p0.height} px, {p0.mm_per_px:g} mm/px at the "
+                     f"centre{', from the recipe' if recipe.driver.spec.name == 'sim' else ''})")
+    sim_offset = float(sim.get("offset_mm", SimParams.offset_mm))
+    radius = float(np.max(np.linalg.norm(V + offset, axis=1))) + sim_offset
+    blind = rig_blind_cameras(rig, radius)
+    if blind:
+        meet = _axes_meet(rig)
+        hint = (f"; its cameras' axes meet near ({meet[0]:.0f}, {meet[1]:.0f}, {meet[2]:.0f}) mm, the part falls through "
+                "the origin" if np.linalg.norm(meet) > radius else "; aim them at the rig centre or widen their view")
+        raise RecipeError(f"{rig_label} does not see the part: camera(s) {', '.join(blind[:6])}"
+                          f"{' ...' if len(blind) > 6 else ''} cannot hold its {2 * radius:.0f} mm bounding sphere "
+                          f"(the part in any pose, up to {sim_offset:g} mm off the rig centre) in their image{hint}")
+    return sim, rig, rig_label, rig_json
 
 
 def _jsonable(obj: Any) -> Any:
@@ -402,12 +421,8 @@ def _worker_context(spec: Mapping[str, Any]) -> dict[str, Any]:
     key = spec["key"]
     if key in _WORKER:
         return _WORKER[key]
-    from inspector.manager import create_plugin_manager
-    from inspector.params import build_params
     from inspector.recipe import parse_recipe
-    from inspector.reference import Reference
     from inspector.capture_folder import parse_rig
-    from inspector_drivers.sim.simulate import SimParams, sim_rig
 
     cfg = spec["study"]
     pm = create_plugin_manager()
@@ -423,8 +438,6 @@ def _worker_context(spec: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _err_line(exc: BaseException) -> str:
-    from inspector.errors import InspectorError
-
     text = " ".join(str(exc).split())
     if isinstance(exc, InspectorError):
         return text
@@ -452,9 +465,7 @@ def run_sim(spec: Mapping[str, Any]) -> list[dict[str, Any]]:
     t0 = time.perf_counter()
     row = _base(spec)
     try:
-        from inspector.params import build_params
         from inspector.runner import inspect_capture
-        from inspector_drivers.sim.simulate import SimParams, simulate
 
         try:
             from distributed import get_worker
@@ -612,15 +623,12 @@ def add_parser(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run ``inspector feasibility``: 0 when every simulation ran, 3 when some failed (the
     report is made from the others; a re-run retries them)."""
-    from inspector.errors import RecipeError
-
     try:
         import distributed  # noqa: F401
         import matplotlib  # noqa: F401
         import statsmodels  # noqa: F401
     except ImportError as e:
         raise RecipeError(f"feasibility needs {e.name} (pip install 'dask[distributed]' matplotlib statsmodels)") from None
-    from inspector_tools.experiment import execute, start_client
     from inspector_tools.feasibility.analysis import analyse
     from inspector_tools.feasibility.report import write_report
 
@@ -672,7 +680,5 @@ def run(args: argparse.Namespace) -> int:
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
     """``inspector feasibility``: a built-in plugin (entry point ``feasibility``), like ``experiment``."""
-    from inspector.registry import CommandSpec
-
     registry.add(CommandSpec("feasibility", add_parser, run,
                              "qualify a part from its CAD: observability, POD, gauge study, report (Dask)"))

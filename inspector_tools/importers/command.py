@@ -2,8 +2,7 @@
 
 A built-in plugin (entry point ``import``): the command is registered through
 ``inspector_register_commands`` like any plugin's; the importers themselves are
-:mod:`inspector_tools.importers.datasets`, imported only when the command runs or its
-parser is built.
+:mod:`inspector_tools.importers.datasets` (one module per format beside it).
 """
 
 from __future__ import annotations
@@ -13,19 +12,16 @@ from typing import Any
 
 from inspector import hookimpl
 from inspector.registry import CommandRegistry, CommandSpec
+from inspector_tools.importers import datasets as importers
 
 __all__ = ["inspector_register_commands"]
 
 
 def _add_parser(sub: argparse._SubParsersAction[Any]) -> None:
-    from inspector_tools.importers import datasets as importers
-
     importers.add_parser(sub)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from inspector_tools.importers import datasets as importers
-
     return importers.run(args)
 
 

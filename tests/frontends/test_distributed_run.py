@@ -194,7 +194,7 @@ def test_an_archive_on_the_cluster_gives_the_local_run_s_results(archive, local_
     _check_exactly_once(out)
     _same_as_local(out, local_out)
     # The inspections ran on both workers (each loaded the recipe once), not in the client.
-    loaded = cluster.client.run(lambda: len(__import__("inspector_frontends.distributed").distributed_run._LOADED))
+    loaded = cluster.client.run(lambda: len(__import__("inspector_frontends.distributed").distributed._LOADED))
     assert sorted(loaded.values()) == [1, 1]
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from inspector_tools.bench import carving, common, cycles, targets
 from inspector_tools.bench import command as bench
 from inspector.errors import RecipeError
 
@@ -39,7 +40,7 @@ def test_benchmark_one_inspection(benchmark, default_recipe, small_capture, tmp_
     from inspector.runner import run_batch
 
     pm, recipe, ref = default_recipe
-    acq = bench._acquisition(small_capture)
+    acq = cycles.acquisition(small_capture)
     runs = iter(range(1_000_000))
 
     def one():
@@ -101,10 +102,10 @@ def test_run_tiny(tmp_path, capsys):
 
 
 def test_kernels_are_compiled_by_a_real_inspection_in_a_child(small_capture, tmp_path):
-    r = bench.compile_kernels(str(RECIPES / "default.toml"), "builtin:cube30", small_capture, tmp_path / "out")
+    r = common.compile_kernels(str(RECIPES / "default.toml"), "builtin:cube30", small_capture, tmp_path / "out")
     assert r["exit"] in (0, 1)  # pass or out of tolerance: the whole pipeline ran
     assert (tmp_path / "out" / small_capture.name / "result.json").is_file()
-    bad = bench.compile_kernels(str(RECIPES / "default.toml"), "builtin:cube30", tmp_path / "missing", tmp_path / "o2")
+    bad = common.compile_kernels(str(RECIPES / "default.toml"), "builtin:cube30", tmp_path / "missing", tmp_path / "o2")
     assert bad["exit"] not in (0, 1)
 
 
@@ -112,11 +113,11 @@ def test_open3d_grid_too_large_is_refused(default_recipe, small_capture):
     from inspector.capture_folder import read_capture
 
     _, recipe, _ = default_recipe
-    c = bench.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=0.25, carve_runs=1,
+    c = carving.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=0.25, carve_runs=1,
                               open3d_max_gb=0.001)
     assert "refused" in c["open3d"] and "--open3d-voxel" in c["open3d"]["refused"]
     assert c["ratio"] is None and c["ours"]["n_points"] > 0
-    assert bench._targets({"stages": {}, "memory": {}}, c)["carve_ratio"]["met"] is None
+    assert targets.targets({"stages": {}, "memory": {}}, c)["carve_ratio"]["met"] is None
 
 
 @pytest.mark.parametrize("argv", [("--runs", "0"), ("--carve-voxel", "0"), ("--open3d-voxel", "-1"), ("--capture", "/nonexistent/x")])
@@ -138,7 +139,7 @@ def test_carving_ratios(default_recipe, small_capture):
     from inspector.capture_folder import read_capture
 
     _, recipe, _ = default_recipe
-    c = bench.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=2.0, carve_runs=2)
+    c = carving.compare_carving(read_capture(small_capture), recipe, carve_voxel=0.8, open3d_voxel=2.0, carve_runs=2)
     ours = c["ours"]
     assert 0 < ours["without_mesh_median_s"] <= ours["max_s"]
     assert c["ratio"] == pytest.approx(c["open3d"]["carve_silhouette_s"] / ours["median_s"])
@@ -196,18 +197,18 @@ def test_targets_follow_the_image_size_and_camera_count():
     assert bench.memory_target_mb(4096, 4096) is None
     cycles = {"stages": {"cycle": {"median": 0.8, "min": 0.7, "max": 0.9}}, "memory": {"peak_mb": 2000.0},
               "loadavg": {"min": 1.0, "median": 1.5, "max": 2.0}}
-    small = bench._targets(cycles, None, size=(1024, 1024), cameras=16)
+    small = targets.targets(cycles, None, size=(1024, 1024), cameras=16)
     assert small["cycle"]["met"] is False and small["memory"]["met"] is False
-    big = bench._targets(cycles, None, size=(2448, 2048), cameras=16)
+    big = targets.targets(cycles, None, size=(2448, 2048), cameras=16)
     assert big["cycle"]["met"] is True and big["memory"]["met"] is True
     assert big["cycle"]["loadavg"] == cycles["loadavg"]  # the load stands beside the figure
-    huge = bench._targets(cycles, None, size=(4096, 4096), cameras=16)
+    huge = targets.targets(cycles, None, size=(4096, 4096), cameras=16)
     assert huge["cycle"]["met"] is None and huge["memory"]["met"] is None
 
 
 def test_cycles_record_load_and_cpu_per_run(default_recipe, small_capture, tmp_path):
     pm, recipe, ref = default_recipe
-    c = bench.bench_cycles(recipe, ref, pm, small_capture, tmp_path, 2)
+    c = cycles.bench_cycles(recipe, ref, pm, small_capture, tmp_path, 2)
     assert len(c["runs"]) == 2
     for r in c["runs"]:
         assert len(r["loadavg"]) == 2 and all(x is None or x >= 0 for x in r["loadavg"])

@@ -14,6 +14,8 @@ from pathlib import Path
 import pytest
 
 from inspector_tools import experiment as ex
+from inspector_tools import experiment_cases as excases
+from inspector_tools import experiment_execution as exexec
 
 
 def _parse(*argv: str) -> argparse.Namespace:
@@ -73,7 +75,7 @@ def test_cli_options_and_specs():
     a = _parse("1", "3", "--out", "x", "--quick", "--orientations", "3", "--workers", "1", "--scheduler", "tcp://h:8786")
     assert (a.cases, a.out, a.quick, a.orientations, a.workers, a.scheduler) == (["1", "3"], "x", True, 3, 1, "tcp://h:8786")
     assert a.methods == ["ray", "surface"]
-    cases = ex._resolve_cases(["scale", "3", "1"])
+    cases = excases.resolve_cases(["scale", "3", "1"])
     assert [c.name for c in cases] == ["scale", "objects"]
     specs = ex.make_specs(cases, preset="quick", orientations=2)
     n_scale = 2 * len(ex.CASES["scale"].values["quick"]) * 2
@@ -92,19 +94,19 @@ def test_the_built_in_pipeline_carves_at_one_pixel_footprint_and_a_recipe_keeps_
     def voxel(stages):
         return next(s["params"]["voxel_mm"] for s in stages if s["use"] == "carve.hull")
 
-    assert voxel(ex._pipeline(None, "full")[0]) == ex.PRESETS["full"]["rig"]["mm_per_px"] == 0.1
-    assert voxel(ex._pipeline(None, "quick")[0]) == ex.PRESETS["quick"]["rig"]["mm_per_px"] == 0.2
+    assert voxel(excases.pipeline(None, "full")[0]) == ex.PRESETS["full"]["rig"]["mm_per_px"] == 0.1
+    assert voxel(excases.pipeline(None, "quick")[0]) == ex.PRESETS["quick"]["rig"]["mm_per_px"] == 0.2
     recipe = tmp_path / "r.toml"
     recipe.write_text('[recipe]\nname = "r"\n[[stages]]\nuse = "carve.hull"\nparams = { voxel_mm = 0.5 }\n'
                       '[[stages]]\nuse = "bcps.ray"\n', encoding="utf-8")
-    assert voxel(ex._pipeline(str(recipe), "full")[0]) == 0.5
+    assert voxel(excases.pipeline(str(recipe), "full")[0]) == 0.5
 
 
 def test_bad_options_are_refused():
     from inspector.errors import RecipeError
 
     with pytest.raises(RecipeError, match="unknown case"):
-        ex._resolve_cases(["7"])
+        excases.resolve_cases(["7"])
     with pytest.raises(RecipeError, match="scale must be"):
         ex.make_specs([ex.CASES["scale"]], values=["0.1"])
     with pytest.raises(RecipeError, match="variants"):
@@ -117,15 +119,15 @@ def test_bad_options_are_refused():
 
 def test_sim_table_bumps_are_paired_across_sizes():
     base = {"part": "cube30", "seed": 3, "sim": {}, "bumps": 3, "variable": "defect_mm"}
-    add = ex._sim_table(base | {"value": 2.0})
-    rem = ex._sim_table(base | {"value": -1.0})
-    assert "bumps" not in ex._sim_table(base | {"value": 0.0})
+    add = exexec._sim_table(base | {"value": 2.0})
+    rem = exexec._sim_table(base | {"value": -1.0})
+    assert "bumps" not in exexec._sim_table(base | {"value": 0.0})
     assert [b["kind"] for b in add["bumps"]] == ["add"] * 3 and [b["kind"] for b in rem["bumps"]] == ["remove"] * 3
     assert [b["radius_mm"] for b in add["bumps"]] == [2.0] * 3
     assert [b["at"] for b in add["bumps"]] == [b["at"] for b in rem["bumps"]]  # same positions, same seed
     obj = {"part": "gauge", "seed": 0, "sim": {}, "bumps": 3, "variable": "variant"}
-    assert ex._sim_table(obj | {"value": "excess"})["scale"] == 1.03
-    assert ex._sim_table(obj | {"value": "missing"})["scale"] == 0.97
+    assert exexec._sim_table(obj | {"value": "excess"})["scale"] == 1.03
+    assert exexec._sim_table(obj | {"value": "missing"})["scale"] == 0.97
 
 
 def test_a_failing_task_is_a_row_not_an_exception():
@@ -220,7 +222,7 @@ def test_a_failed_future_does_not_lose_the_other_results(dask_ready):
     def fn(spec):
         if spec["orientation"] == 1:
             return _boom(spec)
-        return [ex._base_row(spec, "ray") | {"status": "ok", "verdict": "pass"}]
+        return [exexec._base_row(spec, "ray") | {"status": "ok", "verdict": "pass"}]
 
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=":0") as cluster, Client(cluster) as client:
         got = []
