@@ -21,6 +21,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from inspector import API_VERSION, __version__, hookimpl
+from inspector import capture_folder as folder
 from inspector.errors import (
     CaptureError,
     InputError,
@@ -129,8 +130,6 @@ _CAPTURE_IO = ("read_capture", "write_capture", "save_capture", "read_rig", "is_
 
 def __getattr__(name: str) -> Any:
     if name in _CAPTURE_IO:
-        from inspector import capture_folder as folder
-
         value = getattr(folder, name)
         globals()[name] = value
         return value

@@ -2,7 +2,7 @@
 check that ``run``, ``serve`` and the GUI make in the operator role.
 
 ``inspector recipe approve RECIPE`` (the engineer password asked) stores an approval in
-``approvals.json`` beside ``roles.json`` (:func:`inspector.roles.config_dir`; mode 0600, written
+``approvals.json`` beside ``roles.json`` (:func:`inspector.roles_password.config_dir`; mode 0600, written
 atomically) and a ``recipe-approve`` row in the station's audit trail. An approval is of the
 recipe's *content*: :func:`recipe_digest`, the SHA-256 of the recipe file's bytes together with
 its reference mesh (the mesh file's bytes, or the ``builtin:NAME``), so a recipe whose file or
@@ -26,12 +26,15 @@ import os
 import sqlite3
 import sys
 from dataclasses import dataclass
-from datetime import datetime, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inspector import roles
 from inspector.errors import RecipeError
+from inspector.roles_audit import record_audit, record_station_audit
+from inspector.roles_password import config_dir as station_config_dir
+from inspector.roles_password import read_config, roles_file, write_config
 
 if TYPE_CHECKING:
     from inspector.recipe import Recipe
@@ -43,8 +46,8 @@ APPROVALS_FILE = "approvals.json"
 
 
 def approvals_file(config_dir: str | os.PathLike[str] | None = None) -> Path:
-    """``approvals.json`` in the configuration folder (:func:`inspector.roles.config_dir`)."""
-    return roles.config_dir(config_dir) / APPROVALS_FILE
+    """``approvals.json`` in the configuration folder (:func:`inspector.roles_password.config_dir`)."""
+    return station_config_dir(config_dir) / APPROVALS_FILE
 
 
 @dataclass(frozen=True)
@@ -158,9 +161,9 @@ def approve(recipe: Recipe, who: str | None, *, config_dir: str | os.PathLike[st
                      datetime.now(UTC).isoformat(timespec="milliseconds"))
     rows = [r for r in _read(config_dir) if r.get("recipe") != here]
     rows.append(dict(entry.__dict__))
-    roles._write_atomic(approvals_file(config_dir), {"version": 1, "approvals": rows})
-    roles.record_station_audit("recipe-approve", who=who, role_before=roles.ENGINEER, role_after=roles.ENGINEER,
-                               recipe=here, digest=digest, config_dir=config_dir)
+    write_config(approvals_file(config_dir), {"version": 1, "approvals": rows})
+    record_station_audit("recipe-approve", who=who, role_before=roles.ENGINEER, role_after=roles.ENGINEER,
+                         recipe=here, digest=digest, config_dir=config_dir)
     return entry
 
 
@@ -176,9 +179,9 @@ def approval_problem(recipe: Recipe, *, role: str = roles.OPERATOR,
     """
     if role == roles.ENGINEER:
         return None
-    path = roles.roles_file(config_dir)
+    path = roles_file(config_dir)
     try:
-        production = roles._read_config(path).get("production") is True
+        production = read_config(path).get("production") is True
     except (OSError, ValueError) as e:  # fail closed: whether this is a production station is unknown
         return (f"{path}: cannot be read ({e}), so whether this station is in production mode is unknown: the "
                 "operator role runs no recipe until an engineer repairs it (inspector roles set-password --reset, "
@@ -215,8 +218,8 @@ def require_approved(recipe: Recipe, *, outdir: str | os.PathLike[str] | None, u
           file=sys.stderr, flush=True)
     if outdir is not None:
         try:
-            roles.record_audit(outdir, "unapproved-run", who=roles.login_name(), role_before=roles.OPERATOR,
-                               role_after=roles.OPERATOR, recipe_after=recipe.path)
+            record_audit(outdir, "unapproved-run", who=roles.login_name(), role_before=roles.OPERATOR,
+                         role_after=roles.OPERATOR, recipe_after=recipe.path)
         except (OSError, sqlite3.Error) as e:  # the audit never stops the run
             print(f"inspector: warning: {outdir}: audit row 'unapproved-run' not recorded ({e})", file=sys.stderr)
 

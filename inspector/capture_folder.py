@@ -48,6 +48,9 @@ What :func:`read_capture` returns
 :func:`write_capture` writes the same layout (rig.json in mm, lossless PNG) and writes
 ``rig.json`` last, so a hot-folder watcher that waits for ``rig.json``
 (:func:`is_capture_folder`) never sees a half-written capture.
+
+The PNG format's own checks (:func:`png_header`, :func:`is_complete_png`) are
+:mod:`inspector.png`'s, also importable from here.
 """
 
 from __future__ import annotations
@@ -56,8 +59,6 @@ import json
 import math
 import os
 import re
-import struct
-import zlib
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
@@ -71,6 +72,7 @@ from inspector.kernels.camera import is_rotation
 from inspector.limits import check_memory, image_file_bytes, limit, load_json, read_bounded
 from inspector.model import Camera, Capture, Rig, Truth
 from inspector.names import check_name, folder_name, name_problem, printable, text_problem
+from inspector.png import PNG_IEND, PNG_SIGNATURE, is_complete_png, png_header
 from inspector.registry import Acquisition
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -110,11 +112,6 @@ ROTATION_TOL = 1e-4
 
 _UNIT_SCALE = {"mm": 1.0, "m": 1000.0}
 _CAMERA_KEYS = ("name", "width", "height", "K", "R", "t")
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-_PNG_IEND = b"IEND\xaeB`\x82"  # chunk type + its (constant) CRC
-#: PNG colour type -> (what it is, the bit depths the PNG specification allows for it).
-_PNG_COLOURS = {0: ("grey", (1, 2, 4, 8, 16)), 2: ("RGB", (8, 16)), 3: ("palette", (1, 2, 4, 8)),
-                4: ("grey + alpha", (8, 16)), 6: ("RGBA", (8, 16))}
 _BAD_NAME = re.compile(r"[/\\\x00-\x1f]")
 
 
@@ -382,63 +379,6 @@ def _list_pngs(folder: Path, sub: str, rig: Rig) -> dict[str, Path]:
     return found
 
 
-def png_header(data: bytes, label: str, error: type[Exception] = CaptureError) -> tuple[int, int, int, int]:
-    """``(width, height, bit depth, colour type)`` from the signature and header chunk that
-    start the PNG bytes ``data`` (the first 33 bytes are enough).
-
-    Checked as the PNG specification defines them, before anything is decoded: the
-    signature, a first chunk ``IHDR`` of 13 bytes with a correct checksum, a size of at least
-    1 x 1, a bit depth allowed for the colour type (grey 1-16, RGB 8/16, palette 1-8, grey +
-    alpha 8/16, RGBA 8/16), compression and filter method 0, interlace 0 or 1.
-
-    Raises ``error`` with a one-line message starting with ``label``.
-    """
-    if not data:
-        raise error(f"{label}: empty file")
-    if not data.startswith(_PNG_SIGNATURE):
-        raise error(f"{label}: not a PNG file")
-    if len(data) < 33:
-        raise error(f"{label}: truncated PNG (its header is cut, {len(data)} bytes)")
-    length, kind = struct.unpack(">I4s", data[8:16])
-    if length != 13 or kind != b"IHDR":
-        raise error(f"{label}: corrupt PNG (its first chunk is not a 13-byte header)")
-    if zlib.crc32(data[12:29]) != struct.unpack(">I", data[29:33])[0]:
-        raise error(f"{label}: corrupt PNG header (checksum mismatch)")
-    width, height, depth, colour, compression, filtering, interlace = struct.unpack(">IIBBBBB", data[16:29])
-    if not (0 < width < 2**31 and 0 < height < 2**31):
-        raise error(f"{label}: corrupt PNG header (size {width}x{height})")
-    if colour not in _PNG_COLOURS:
-        raise error(f"{label}: corrupt PNG header (colour type {colour})")
-    what, depths = _PNG_COLOURS[colour]
-    if depth not in depths:
-        raise error(f"{label}: corrupt PNG header ({depth}-bit {what}; {what} is {'/'.join(map(str, depths))}-bit)")
-    if compression or filtering or interlace > 1:
-        raise error(f"{label}: corrupt PNG header (compression {compression}, filter {filtering}, interlace {interlace})")
-    return width, height, depth, colour
-
-
-def is_complete_png(path: str | os.PathLike[str]) -> bool:
-    """Whether ``path`` is a whole PNG file: a valid header (:func:`png_header`) and the
-    final ``IEND`` chunk at its end. Reads a few bytes at each end; never raises.
-
-    What a hot folder asks before it reads a capture: a writer that stalls in the middle of
-    an image leaves a file without its end.
-    """
-    import stat
-
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))  # a FIFO never blocks
-        with os.fdopen(fd, "rb") as f:
-            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
-                return False
-            png_header(f.read(33), "")
-            size = f.seek(0, os.SEEK_END)
-            f.seek(max(0, size - 1024))
-            return f.read(1024).rfind(_PNG_IEND) >= 0
-    except (OSError, CaptureError, ValueError):
-        return False
-
-
 def _inside(path: Path, root: str, label: str, camera: str) -> None:
     """Refuse an image that is, or lies behind, a link leading out of the capture folder
     ``root`` (resolved): another capture's image would be inspected as this camera's."""
@@ -481,7 +421,7 @@ def decode_image(
     data = read_bounded(path, label, most, error, what=what, variable="INSPECTOR_MAX_IMAGE_METADATA_BYTES")
     if not data:
         raise error(f"{label}: empty file")
-    is_png = data.startswith(_PNG_SIGNATURE)
+    is_png = data.startswith(PNG_SIGNATURE)
     if png_only and not is_png:
         raise error(f"{label}: not a PNG file")
     if is_png:
@@ -493,7 +433,7 @@ def decode_image(
         if size is None and width * height > most:
             raise error(f"{label}: {width}x{height} is {width * height} pixels, more than the {most} "
                         "an image may have (INSPECTOR_MAX_IMAGE_PIXELS)")
-        if data.rfind(_PNG_IEND, max(0, len(data) - 1024)) < 0:
+        if data.rfind(PNG_IEND, max(0, len(data) - 1024)) < 0:
             raise error(f"{label}: truncated PNG (no IEND chunk)")
     try:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from inspector.errors import RecipeError
+from inspector.roles_password import config_dir
 
 __all__ = ["CELL_FILE", "CELL_TABLES", "MAX_CELL_BYTES", "load_cell", "cell_file"]
 
@@ -64,7 +65,5 @@ def cell_file(given: str | Path | None) -> Path | None:
     ``roles.json`` lives) when it exists, else None."""
     if given:
         return Path(given)
-    from inspector.roles import config_dir
-
     default = config_dir() / CELL_FILE
     return default if default.is_file() else None

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from inspector.kernels.bcps import confidence
 from inspector.model import DeviationStats, InspectionResult
 
 __all__ = ["POINTS_CSV", "REGIONS_CSV", "POINT_COLUMNS", "REGION_COLUMNS", "write_csv", "remove_csv"]
@@ -80,8 +81,6 @@ def write_csv(result: InspectionResult, folder: Path) -> list[Path]:
         idx, regions = None, ()
     names = result.rig.names if result.rig is not None else ()
     if result.rig is not None and len(result.rig):
-        from inspector.kernels.bcps import confidence
-
         conf = confidence(b.segment_mm, result.rig.footprint_mm())
     else:
         conf = np.full(n, np.nan)

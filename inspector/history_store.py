@@ -22,7 +22,7 @@ import socket
 import sqlite3
 import uuid
 from collections.abc import Mapping
-from datetime import datetime, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 

@@ -37,12 +37,11 @@ import pluggy
 
 if TYPE_CHECKING:
     from inspector.model import InspectionResult
-    from inspector.recipe import Recipe
-    from inspector.session import RunSummary
-
-    from inspector_frontends.gui.window import MainWindow
     from inspector.pipeline import InspectionContext
+    from inspector.recipe import Recipe
     from inspector.registry import CommandRegistry, DriverRegistry, SettingsRegistry, StageRegistry, StageSpec
+    from inspector.session import RunSummary
+    from inspector_frontends.gui.window import MainWindow
 
 PROJECT = "inspector"
 hookspec = pluggy.HookspecMarker(PROJECT)

@@ -51,16 +51,16 @@ from typing import TYPE_CHECKING, Any
 
 import pluggy
 
-from inspector import hookspecs
+from inspector import API_VERSION, hookspecs
 from inspector.errors import PluginError
 from inspector.registry import CommandRegistry, DriverRegistry, SettingsRegistry, StageRegistry
 
 if TYPE_CHECKING:
     from inspector.model import InspectionResult
-    from inspector.recipe import Recipe
-    from inspector.session import RunSummary
     from inspector.pipeline import InspectionContext
+    from inspector.recipe import Recipe
     from inspector.registry import CommandSpec, DriverSpec, SettingsSpec, StageSpec, _Registry
+    from inspector.session import RunSummary
 
 __all__ = ["ENTRY_POINT_GROUP", "BLOCK_ENV", "API_ATTR", "BUILTIN_DIST", "PluginInfo", "PluginProblem", "PluginManager",
            "create_plugin_manager", "hook_key", "api_problem"]
@@ -353,7 +353,7 @@ class PluginManager:
     @property
     def problems(self) -> tuple[PluginProblem, ...]:
         """Every plugin problem found so far (each also reported once as a warning)."""
-        self._build()
+        self.build()
         return tuple(self._problems)
 
     def info(self, name: str) -> PluginInfo:
@@ -388,12 +388,13 @@ class PluginManager:
         return reg
 
     def _registry(self, kind: str) -> _Registry:
-        self._build()
+        self.build()
         assert self._regs is not None
         return self._regs[kind]
 
-    def _build(self) -> None:
-        """Fill the registries, each plugin's registry hooks called on their own."""
+    def build(self) -> None:
+        """Fill the registries, each plugin's registry hooks called on their own (nothing to do
+        while they are filled; every query of the registries calls it first)."""
         if self._regs is not None:
             return
         # Phase 1: each plugin into registries of its own; a plugin that raises or registers
@@ -470,7 +471,7 @@ class PluginManager:
         """What plugin ``name`` provides: ``{"stage": [...], "driver": [...], "command": [...],
         "settings": [...], "hook": [...]}`` (hooks without their ``inspector_`` prefix, registry
         hooks left out); empty lists for a blocked or disabled plugin."""
-        self._build()
+        self.build()
         out = {kind: list(names) for kind, names in self._provided.get(name, {}).items()}
         for kind in _KINDS:
             out.setdefault(kind, [])
@@ -485,7 +486,7 @@ class PluginManager:
         """Every plugin known to this manager, loaded or not, by name: ``name``, ``dist``,
         ``version``, ``builtin``, ``status`` (``"loaded"``, ``"blocked"``, ``"disabled"``),
         ``problems`` (its warning lines) and what it ``provides`` (:meth:`provides`)."""
-        self._build()
+        self.build()
         loaded = set(self.plugin_names())
         rows = []
         for name in sorted(set(self._info) | loaded | self._blocked):
@@ -509,7 +510,7 @@ class PluginManager:
         is not registered, in one line that names the plugin when one is to blame (disabled,
         a duplicate name), or lists the known names and the plugins that failed to load
         (which may provide it)."""
-        self._build()
+        self.build()
         if (kind, name) in self._missing:
             return self._missing[(kind, name)]
         reg = self._registry(kind)
@@ -658,8 +659,6 @@ def _probe(plugin: object) -> tuple[str, ...]:
 
 
 def _api() -> str:
-    from inspector import API_VERSION
-
     return API_VERSION
 
 
@@ -742,5 +741,5 @@ def create_plugin_manager(
         manager.load_file(file)
     for plugin in plugins:
         manager.register(plugin)
-    manager._build()
+    manager.build()
     return manager

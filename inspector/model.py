@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from inspector.kernels import camera as camk
+from inspector.kernels.deviation import deviation_stats
 from inspector.kernels.prior import SizePrior
 
 __all__ = [
@@ -408,8 +409,6 @@ class DeviationStats:
     @classmethod
     def of(cls, deviation: np.ndarray) -> DeviationStats | None:
         """The summary of ``deviation`` (N,), None when there is none."""
-        from inspector.kernels.deviation import deviation_stats
-
         d = deviation_stats(np.asarray(deviation, float))
         return cls(**d) if d else None
 

@@ -31,10 +31,12 @@ from typing import Any
 import numpy as np
 
 from inspector.errors import CaptureError
+from inspector.kernels.bcps import confidence
+from inspector.locale import _, number
 from inspector.model import InspectionResult
 from inspector.names import check_name, printable
 
-__all__ = ["write_result", "result_folder", "result_written", "discard_result", "result_to_json", "write_ply", "ply_chunks", "read_ply", "one_line"]
+__all__ = ["write_result", "result_folder", "result_written", "discard_result", "clear_leftovers", "result_to_json", "write_ply", "ply_chunks", "read_ply", "one_line"]
 
 BCPS_PLY = "bcps_points.ply"
 RECON_PLY = "reconstruction.ply"
@@ -236,7 +238,7 @@ def _carry_over(old: Path, folder: Path) -> None:
     shutil.rmtree(old)
 
 
-def _clear_leftovers(folder: Path) -> None:
+def clear_leftovers(folder: Path) -> None:
     """What a crash during an earlier write of ``folder`` left: a partial folder (removed) or
     a replaced folder not yet cleared (its extra files carried over, or put back)."""
     old, partial = _hidden(folder, "old"), _hidden(folder, "partial")
@@ -303,8 +305,6 @@ def _write_files(result: InspectionResult, partial: Path, folder: Path, trace: s
             "segment_mm": b.segment_mm.astype(np.float32),
         }
         if result.rig is not None and len(result.rig):
-            from inspector.kernels.bcps import confidence
-
             cols["confidence"] = confidence(b.segment_mm, result.rig.footprint_mm()).astype(np.float32)
         write_ply(at(BCPS_PLY), cols)
     if result.reconstruction is not None:
@@ -346,7 +346,7 @@ def write_result(result: InspectionResult, outdir: Path, *, trace: str | None = 
     partial, old = _hidden(folder, "partial"), _hidden(folder, "old")
     writing = [folder]  # what is being written, as the message names it
     try:
-        _clear_leftovers(folder)
+        clear_leftovers(folder)
         partial.mkdir(parents=True)
         _write_files(result, partial, folder, trace, writing)
         writing[0] = folder
@@ -373,8 +373,6 @@ def write_result(result: InspectionResult, outdir: Path, *, trace: str | None = 
 def one_line(result: InspectionResult) -> str:
     """A progress/summary line for one result, in the headless language (:mod:`inspector.locale`:
     English unless ``inspector run --lang`` or ``$INSPECTOR_LANG`` chose another)."""
-    from inspector.locale import _, number
-
     name = printable(result.capture)  # one line whatever the capture's name holds
     if result.verdict == "error":
         return _("{name}: ERROR {error}").format(name=name, error=result.error)

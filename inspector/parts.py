@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Literal
 import numpy as np
 
 from inspector.errors import ReferenceMeshError
+from inspector.limits import limit
 
 if TYPE_CHECKING:  # pragma: no cover
     import trimesh
@@ -491,8 +492,6 @@ def load_reference(spec: str | os.PathLike, *, recentre: bool = True) -> trimesh
 
 
 def _check_triangles(n: int, where: str) -> None:
-    from inspector.limits import limit
-
     most = limit("MAX_REFERENCE_TRIANGLES")
     if n > most:
         raise ReferenceMeshError(
@@ -563,8 +562,6 @@ def _check_mesh_size(path: Path, where: str) -> None:
     """The input bounds of a reference mesh (:mod:`inspector.limits`), before it is parsed:
     the file's size, and the triangles a binary STL or a PLY header declares or an ASCII STL
     or OBJ holds (counted by streaming the file). ReferenceMeshError in one line."""
-    from inspector.limits import limit
-
     try:
         size = path.stat().st_size
         most = limit("MAX_REFERENCE_BYTES")

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from inspector.errors import StageError
 from inspector.model import Alignment, BcpsPoints, Capture, Evaluation, Reconstruction, Silhouette
 from inspector.reference import Reference
 
@@ -90,8 +91,6 @@ class InspectionContext:
 
     def need(self, attr: str, stage: str) -> Any:
         """The value of ``attr``, or a StageError saying which earlier stage is missing."""
-        from inspector.errors import StageError
-
         value = getattr(self, attr)
         if value is None:
             raise StageError(f"stage {stage}: needs {attr}, which no earlier stage produced")

@@ -48,10 +48,11 @@ import os
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from types import MappingProxyType
 from pathlib import Path
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
+from inspector.characteristics.definitions import SETTINGS_KEY, measured_in, parse_characteristics
 from inspector.errors import RecipeError
 from inspector.params import build_params, param
 from inspector.pipeline import Band, Region, Tolerance
@@ -306,7 +307,6 @@ def parse_recipe(data: Mapping[str, Any], pm: PluginManager, *, path: Path | Non
     plugins = _plugin_settings(data.get("plugins"), pm, f"{label}: plugins", base)
     chars = _characteristics(data.get("characteristics"), f"{label}: characteristics", ref, steps)
     if chars:  # the measuring stage reads them from context.settings, like a plugin's settings
-        from inspector.characteristics.definitions import SETTINGS_KEY
 
         plugins = MappingProxyType({**plugins, SETTINGS_KEY: chars})
     return Recipe(name, path, ref, driver, tuple(steps), tol, outputs=outputs,
@@ -318,8 +318,6 @@ def _characteristics(raw: Any, where: str, ref: str | None, steps: list[Step]) -
     when no stage of the recipe measures them."""
     if raw is None:
         return ()
-    from inspector.characteristics.definitions import measured_in, parse_characteristics
-
     chars = parse_characteristics(raw, where, ref)
     if chars and not measured_in(steps):
         raise RecipeError(f"{where}: no stage measures them (add [[stages]] name = \"characteristics\", "

@@ -26,6 +26,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal, get_args, get_origin
 
+from inspector.errors import RecipeError
+from inspector.params import describe_params
+
 if TYPE_CHECKING:
     from inspector.manager import PluginManager
 
@@ -340,8 +343,6 @@ def _widget(tp: Any) -> tuple[str, tuple[Any, ...] | None, bool]:
 
 def _fields(cls: type, params: Any, raw: Any) -> tuple[Field, ...]:
     """The fields of a parameter dataclass, valued from the validated ``params``."""
-    from inspector.params import describe_params
-
     hints = typing.get_type_hints(cls)
     given = dict(raw or {})
     out = []
@@ -378,6 +379,8 @@ def form_for(recipe_path: str | os.PathLike[str], pm: PluginManager) -> RecipeFo
     inspector.errors.RecipeError
         The recipe is not valid (the form describes only valid recipes: fix it as text).
     """
+    # lazy: pipeline and recipe load numpy, which `import inspector.recipe_form` must not
+    # (tests/core/test_recipe_form.py::test_module_is_qt_free_and_light)
     from inspector.pipeline import Tolerance
     from inspector.recipe import load_recipe
 
@@ -457,7 +460,8 @@ def validate(form: RecipeForm, pm: PluginManager, *, path: str | os.PathLike[str
     name : str, optional
         A new ``[recipe] name``.
     """
-    from inspector.errors import RecipeError
+    # lazy: pipeline and recipe load numpy, which `import inspector.recipe_form` must not
+    # (tests/core/test_recipe_form.py::test_module_is_qt_free_and_light)
     from inspector.recipe import load_recipe
 
     target = _target(form, path, name)
@@ -536,8 +540,6 @@ def save_new(form: RecipeForm, folder_or_path: str | os.PathLike[str], pm: Plugi
     OSError
         The file cannot be written.
     """
-    from inspector.errors import RecipeError
-
     dest = Path(folder_or_path)
     in_folder = dest.is_dir()
     folder = dest if in_folder else dest.parent

@@ -133,6 +133,8 @@ class Reference:
             Built on first use for that axis (40-85 ms) and kept with the reference: it
             depends on the reference alone, so every part of a batch shares it.
         """
+        # lazy: kernels.axis loads open3d (kernels.rigid), which `import inspector.recipe`
+        # must not (tests/core/test_manager.py::test_import_inspector_is_light)
         from inspector.kernels.axis import turn_zone
 
         key = (np.asarray(axis, float).tobytes(), np.asarray(centre, float).tobytes())

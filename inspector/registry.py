@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
 from inspector.errors import PluginError
+from inspector.model import SUMMARY_FIELDS
 from inspector.params import NoParams, check_param_class
 
 if TYPE_CHECKING:
@@ -212,8 +213,6 @@ class StageRegistry(_Registry):
 def _check_summary(spec: StageSpec) -> None:
     """An evaluate stage declares the summary it fills: EvaluationSummary or a dataclass
     with at least its fields."""
-    from inspector.model import SUMMARY_FIELDS
-
     cls = spec.summary
     if cls is None:
         raise PluginError(f"stage {spec.name!r}: missing field 'summary': an evaluate stage declares "

@@ -32,27 +32,47 @@ one warning line on stderr, never the station.
 Production mode (``inspector roles production on``, a key of ``roles.json``): the station runs
 only recipes an engineer approved (:mod:`inspector.approval`) in the operator role.
 
-This module is plain Python (no Qt): a GUI drives a :class:`RoleSession`.
+This module is plain Python (no Qt): a GUI drives a :class:`RoleSession`. The password store is
+:mod:`inspector.roles_password`, the audit trail :mod:`inspector.roles_audit`; their public
+names are also importable from here (:data:`__all__`).
 """
 
 from __future__ import annotations
 
 import getpass
-import hashlib
-import hmac
 import json
 import os
-import secrets
 import sqlite3
 import sys
-import tempfile
 import time
 from collections.abc import Callable
-from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
-from inspector import ledger
+from inspector.errors import InputError
+from inspector.roles_audit import (
+    AUDIT_ACTIONS,
+    AUDIT_SCHEMA,
+    audit_path,
+    file_sha256,
+    read_audit,
+    record_audit,
+    record_station_audit,
+    station_audit_file,
+    verify_audit,
+)
+from inspector.roles_password import (
+    MIN_PASSWORD_LENGTH,
+    check_password,
+    config_dir,
+    password_error,
+    password_is_set,
+    password_problem,
+    read_config,
+    roles_file,
+    set_password,
+    write_config,
+)
 
 __all__ = [
     "OPERATOR",
@@ -62,7 +82,6 @@ __all__ = [
     "AUDIT_ACTIONS",
     "AUDIT_SCHEMA",
     "MIN_PASSWORD_LENGTH",
-    "PBKDF2_ITERATIONS",
     "config_dir",
     "roles_file",
     "set_password",
@@ -92,411 +111,6 @@ PERMISSIONS: dict[str, frozenset[str]] = {
     ENGINEER: frozenset({"inspect", "view", "export", "choose-recipe", "edit-recipe"}),
 }
 
-#: The ``action`` of an audit row: a run's (the first five, and ``unapproved-run``: a recipe run
-#: in production mode without an approval, told to) or the station's (the others).
-AUDIT_ACTIONS = ("login", "logout", "idle-logout", "login-refused", "recipe-change", "password-set",
-                 "password-refused", "password-reset", "recipe-approve", "approve-refused", "production-on",
-                 "production-off", "unapproved-run")
-
-MIN_PASSWORD_LENGTH = 8
-#: PBKDF2-HMAC-SHA256 iterations of a new hash (a stored hash keeps its own count).
-PBKDF2_ITERATIONS = 600_000
-_ALGORITHM = "pbkdf2_sha256"
-_ROLES_FILE = "roles.json"
-
-#: Version 1 of the audit table; it lives beside the ``inspections`` tables of the history
-#: plugin in the same file (and in the station's ``audit.sqlite``). ``at`` is UTC ISO-8601;
-#: ``hash_*`` are the SHA-256 (hex) of the recipe files' bytes, null when there is no file (for
-#: ``recipe-approve``, ``hash_after`` is the approval's digest, :mod:`inspector.approval`);
-#: ``chain`` the row's link of the hash chain (:mod:`inspector.ledger`). A table from before
-#: (fewer actions in its CHECK, no ``chain``) is rebuilt with its rows and ids when next written.
-AUDIT_SCHEMA = f"""
-CREATE TABLE IF NOT EXISTS audit (
-    id INTEGER PRIMARY KEY,
-    at TEXT NOT NULL,
-    who TEXT,
-    action TEXT NOT NULL CHECK (action IN ({', '.join(repr(a) for a in AUDIT_ACTIONS)})),
-    role_before TEXT,
-    role_after TEXT,
-    recipe_before TEXT,
-    recipe_after TEXT,
-    hash_before TEXT,
-    hash_after TEXT,
-    chain TEXT
-);
-CREATE INDEX IF NOT EXISTS audit_at ON audit (at);
-"""
-
-_AUDIT_COLUMNS = ("id", "at", "who", "action", "role_before", "role_after",
-                  "recipe_before", "recipe_after", "hash_before", "hash_after")
-_STATION_AUDIT = "audit.sqlite"
-
-
-# --------------------------------------------------------------------------- the password
-
-
-def config_dir(config_dir: str | os.PathLike[str] | None = None) -> Path:
-    """The configuration folder: ``config_dir`` if given, else ``$INSPECTOR_CONFIG_DIR``,
-    else ``~/.config/inspector``."""
-    if config_dir is not None:
-        return Path(config_dir)
-    env = os.environ.get("INSPECTOR_CONFIG_DIR")
-    if env:
-        return Path(env).expanduser()
-    return Path.home() / ".config" / "inspector"
-
-
-def roles_file(config_dir_: str | os.PathLike[str] | None = None) -> Path:
-    """The ``roles.json`` of :func:`config_dir`."""
-    return config_dir(config_dir_) / _ROLES_FILE
-
-
-def _hash(password: str, salt: bytes, iterations: int) -> bytes:
-    return hashlib.pbkdf2_hmac("sha256", password.encode("utf-8"), salt, iterations)
-
-
-def _read_config(path: Path) -> dict[str, Any]:
-    """roles.json as a dict ({} when there is none); ValueError/OSError when unreadable."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        return {}
-    data = json.loads(text)
-    if not isinstance(data, dict):
-        raise ValueError("expected a JSON object")
-    return data
-
-
-def _write_atomic(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` as JSON to ``path``: mode 0600, a temporary file renamed over it."""
-    path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")  # mode 0600
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=1, sort_keys=True)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o600)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    try:  # the rename itself survives a power cut
-        dfd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
-    except OSError:
-        pass
-
-
-def _password_error(password: str) -> str | None:
-    if not password:
-        return "the password is empty"
-    if len(password) < MIN_PASSWORD_LENGTH:
-        return f"the password is shorter than {MIN_PASSWORD_LENGTH} characters"
-    return None
-
-
-def set_password(password: str, *, config_dir: str | os.PathLike[str] | None = None) -> Path:
-    """Set the engineer password: store its salted PBKDF2-HMAC-SHA256 hash in ``roles.json``.
-
-    Parameters
-    ----------
-    password : str
-        At least :data:`MIN_PASSWORD_LENGTH` characters.
-    config_dir : path, optional
-        The configuration folder (default :func:`config_dir`).
-
-    Returns
-    -------
-    Path
-        The ``roles.json`` written (mode 0600; other keys it held are kept).
-
-    Raises
-    ------
-    ValueError
-        Empty or too short a password.
-    OSError
-        The file cannot be written.
-    """
-    problem = _password_error(password)
-    if problem:
-        raise ValueError(problem)
-    path = roles_file(config_dir)
-    try:
-        data = _read_config(path)
-    except (OSError, ValueError):
-        data = {}  # an unreadable file is replaced: setting the password is how it is repaired
-    salt = secrets.token_bytes(16)
-    data["version"] = 1
-    data["engineer"] = {
-        "algorithm": _ALGORITHM,
-        "iterations": PBKDF2_ITERATIONS,
-        "salt": salt.hex(),
-        "hash": _hash(password, salt, PBKDF2_ITERATIONS).hex(),
-        "set_at": _now(),
-    }
-    _write_atomic(path, data)
-    return path
-
-
-def _engineer_record(config_dir_: str | os.PathLike[str] | None) -> dict[str, Any]:
-    """The stored hash, checked; ValueError/OSError saying what is wrong."""
-    path = roles_file(config_dir_)
-    data = _read_config(path)
-    rec = data.get("engineer")
-    if rec is None:
-        raise LookupError("no engineer password is set")
-    if not isinstance(rec, dict) or rec.get("algorithm") != _ALGORITHM:
-        raise ValueError(f"unknown password algorithm (expected {_ALGORITHM})")
-    iterations = rec.get("iterations")
-    if not isinstance(iterations, int) or isinstance(iterations, bool) or iterations < 1:
-        raise ValueError("bad iteration count")
-    salt, digest = bytes.fromhex(str(rec.get("salt", ""))), bytes.fromhex(str(rec.get("hash", "")))
-    if not salt or len(digest) != 32:
-        raise ValueError("bad salt or hash")
-    return {"iterations": iterations, "salt": salt, "hash": digest}
-
-
-def password_problem(*, config_dir: str | os.PathLike[str] | None = None) -> str | None:
-    """Why engineer mode cannot be reached (one line, for the GUI), or None when a password
-    is set."""
-    path = roles_file(config_dir)
-    try:
-        _engineer_record(config_dir)
-    except LookupError:
-        return ("engineer mode is locked: no engineer password is set "
-                f"(set one with `inspector roles set-password`; it is stored in {path})")
-    except (OSError, ValueError) as e:
-        return (f"engineer mode is locked: {path} cannot be read ({e}); "
-                "set the password again with `inspector roles set-password`")
-    return None
-
-
-def password_is_set(*, config_dir: str | os.PathLike[str] | None = None) -> bool:
-    """Whether a usable engineer password is stored (else :func:`password_problem` says why)."""
-    return password_problem(config_dir=config_dir) is None
-
-
-def check_password(password: str, *, config_dir: str | os.PathLike[str] | None = None) -> bool:
-    """Whether ``password`` is the engineer password; False when none is set (or the file
-    cannot be read: :func:`password_problem`)."""
-    try:
-        rec = _engineer_record(config_dir)
-    except (LookupError, OSError, ValueError):
-        return False
-    return hmac.compare_digest(_hash(password, rec["salt"], rec["iterations"]), rec["hash"])
-
-
-# --------------------------------------------------------------------------- the audit trail
-
-
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
-
-
-def _history_path(outdir: str | os.PathLike[str]) -> Path:
-    from inspector.history_store import HISTORY_FILE
-
-    return Path(outdir) / HISTORY_FILE
-
-
-def file_sha256(path: str | os.PathLike[str] | None) -> str | None:
-    """SHA-256 (hex) of a file's bytes; None when ``path`` is None or not a readable file."""
-    if path is None:
-        return None
-    try:
-        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-    except OSError:
-        return None
-
-
-def _path_text(path: str | os.PathLike[str] | None) -> str | None:
-    if path is None:
-        return None
-    p = Path(path)
-    try:
-        return str(p.resolve())
-    except OSError:
-        return str(p)
-
-
-def station_audit_file(config_dir_: str | os.PathLike[str] | None = None) -> Path:
-    """The station's audit trail: ``audit.sqlite`` beside ``roles.json`` (:func:`config_dir`)."""
-    return config_dir(config_dir_) / _STATION_AUDIT
-
-
-def _audit_is_current(con: sqlite3.Connection) -> bool | None:
-    """Whether the ``audit`` table has every action and the ``chain`` column (None: no table)."""
-    found = con.execute("SELECT sql FROM sqlite_master WHERE type = 'table' AND name = 'audit'").fetchone()
-    if found is None:
-        return None
-    columns = {r[1] for r in con.execute("PRAGMA table_info(audit)")}
-    return ledger.CHAIN_COLUMN in columns and all(f"'{a}'" in found[0] for a in AUDIT_ACTIONS)
-
-
-def _ensure_audit(con: sqlite3.Connection) -> None:
-    """Create the ``audit`` table, or rebuild one from before (its CHECK lacks actions added
-    since, or it has no ``chain``) with its rows and ids: SQLite cannot change a CHECK in place.
-    Its older rows have no hash; the chain starts at the next row."""
-    state = _audit_is_current(con)
-    if state:
-        return
-    if state is None:
-        con.executescript(AUDIT_SCHEMA)
-        if _audit_is_current(con):
-            return
-    con.execute("BEGIN IMMEDIATE")  # two writers: the second finds the table rebuilt
-    try:
-        if not _audit_is_current(con):
-            have = [r[1] for r in con.execute("PRAGMA table_info(audit)")]
-            keep = [c for c in (*_AUDIT_COLUMNS, ledger.CHAIN_COLUMN) if c in have]
-            create = AUDIT_SCHEMA.split(";")[0].replace("CREATE TABLE IF NOT EXISTS audit", "CREATE TABLE audit_new")
-            con.execute(create)
-            con.execute(f"INSERT INTO audit_new ({', '.join(keep)}) SELECT {', '.join(keep)} FROM audit ORDER BY id")
-            con.execute("DROP TABLE audit")
-            con.execute("ALTER TABLE audit_new RENAME TO audit")
-            con.execute("CREATE INDEX IF NOT EXISTS audit_at ON audit (at)")
-        con.commit()
-    except BaseException:
-        con.rollback()
-        raise
-
-
-def _append_audit(path: Path, action: str, *, who: str | None, role_before: str | None, role_after: str | None,
-                  recipe_before: str | None, recipe_after: str | None, hash_before: str | None,
-                  hash_after: str | None, at: datetime | None) -> int:
-    """One chained row appended to the ``audit`` table of the SQLite file ``path``."""
-    if action not in AUDIT_ACTIONS:
-        raise ValueError(f"unknown audit action {action!r} (expected one of {', '.join(AUDIT_ACTIONS)})")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    row = (
-        (at or datetime.now(UTC)).astimezone(UTC).isoformat(timespec="milliseconds"),
-        who, action, role_before, role_after, recipe_before, recipe_after, hash_before, hash_after,
-    )
-    con = sqlite3.connect(str(path), timeout=10.0)
-    try:
-        con.execute("PRAGMA journal_mode=WAL")
-        _ensure_audit(con)
-        cur = con.execute(
-            "INSERT INTO audit (at, who, action, role_before, role_after, recipe_before, recipe_after,"
-            " hash_before, hash_after) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-            row,
-        )
-        rid = int(cur.lastrowid or 0)
-        ledger.seal(con, "audit", rid)  # in the insert's transaction: the previous row is fixed
-        con.commit()
-        return rid
-    finally:
-        con.close()
-
-
-def record_audit(
-    outdir: str | os.PathLike[str],
-    action: str,
-    *,
-    who: str | None,
-    role_before: str | None,
-    role_after: str | None,
-    recipe_before: str | os.PathLike[str] | None = None,
-    recipe_after: str | os.PathLike[str] | None = None,
-    at: datetime | None = None,
-) -> int:
-    """Append one row to the ``audit`` table of ``outdir/history.sqlite``; returns its id.
-
-    The recipe files are hashed now (SHA-256 of their bytes). ``outdir`` is created if
-    needed. The row is hash-chained to the one before (:mod:`inspector.ledger`).
-
-    Raises
-    ------
-    ValueError
-        ``action`` is not one of :data:`AUDIT_ACTIONS`.
-    sqlite3.Error, OSError
-        The database cannot be written (:class:`RoleSession` turns these into a warning).
-    """
-    if action not in AUDIT_ACTIONS:
-        raise ValueError(f"unknown audit action {action!r} (expected one of {', '.join(AUDIT_ACTIONS)})")
-    return _append_audit(_history_path(outdir), action, who=who, role_before=role_before, role_after=role_after,
-                         recipe_before=_path_text(recipe_before), recipe_after=_path_text(recipe_after),
-                         hash_before=file_sha256(recipe_before), hash_after=file_sha256(recipe_after), at=at)
-
-
-def record_station_audit(action: str, *, who: str | None, role_before: str | None = None,
-                         role_after: str | None = None, recipe: str | os.PathLike[str] | None = None,
-                         digest: str | None = None, config_dir: str | os.PathLike[str] | None = None) -> int:
-    """Append one row to the station's audit trail (:func:`station_audit_file`): a password
-    set, refused or reset, a recipe approved (``recipe`` and its approval ``digest`` as
-    ``recipe_after``/``hash_after``), production mode switched. Returns its id.
-
-    Raises
-    ------
-    ValueError
-        ``action`` is not one of :data:`AUDIT_ACTIONS`.
-    sqlite3.Error, OSError
-        The file cannot be written.
-    """
-    return _append_audit(station_audit_file(config_dir), action, who=who, role_before=role_before,
-                         role_after=role_after, recipe_before=None, recipe_after=_path_text(recipe),
-                         hash_before=None, hash_after=digest, at=None)
-
-
-def _audit_path(outdir: str | os.PathLike[str] | None, config_dir_: str | os.PathLike[str] | None) -> Path:
-    return station_audit_file(config_dir_) if outdir is None else _history_path(outdir)
-
-
-def read_audit(outdir: str | os.PathLike[str] | None, *, last: int | None = None,
-               config_dir: str | os.PathLike[str] | None = None) -> list[dict[str, Any]]:
-    """The audit rows of ``outdir`` (None: the station's), oldest first (the ``last`` ones
-    only); [] when the file holds none.
-
-    Raises
-    ------
-    inspector.errors.InputError
-        No ``history.sqlite`` in ``outdir`` (no station audit file), or it cannot be read (the
-        message names it).
-    """
-    from inspector.errors import InputError
-
-    path = _audit_path(outdir, config_dir)
-    if not path.is_file():
-        if outdir is None:
-            raise InputError(f"{path}: no station audit yet (set-password, recipe approve and production write it)")
-        raise InputError(f"{path}: no history (the station and inspector run write it in OUTDIR)")
-    from inspector.history_store import read_table
-
-    return read_table(path, "audit", _AUDIT_COLUMNS, last=last) or []
-
-
-def verify_audit(outdir: str | os.PathLike[str] | None, *,
-                 config_dir: str | os.PathLike[str] | None = None) -> ledger.ChainReport:
-    """The hash chain of the audit rows of ``outdir`` (None: the station's) checked
-    (:func:`inspector.ledger.verify`).
-
-    Raises
-    ------
-    inspector.errors.InputError
-        No such file, or it cannot be read.
-    """
-    from inspector.errors import InputError
-
-    path = _audit_path(outdir, config_dir)
-    if not path.is_file():
-        raise InputError(f"{path}: no audit trail")
-    try:
-        con = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
-        try:
-            return ledger.verify(con, "audit", describe=lambda r: f"{r.get('action')} by {r.get('who') or '-'}")
-        finally:
-            con.close()
-    except sqlite3.Error as e:
-        raise InputError(f"{path}: cannot be read ({e})") from None
-
 
 # --------------------------------------------------------------------------- production mode
 
@@ -506,7 +120,7 @@ def production_mode(*, config_dir: str | os.PathLike[str] | None = None) -> bool
     the operator role it runs only approved recipes (:mod:`inspector.approval`). False when
     the file is missing or unreadable: a station is switched on explicitly."""
     try:
-        return _read_config(roles_file(config_dir)).get("production") is True
+        return read_config(roles_file(config_dir)).get("production") is True
     except (OSError, ValueError):
         return False
 
@@ -516,9 +130,9 @@ def set_production_mode(on: bool, who: str | None, *, config_dir: str | os.PathL
     (``production-on``/``production-off`` in the station's audit). The caller checks the
     engineer password first (:func:`check_password`)."""
     path = roles_file(config_dir)
-    data = _read_config(path)
+    data = read_config(path)
     data["production"] = bool(on)
-    _write_atomic(path, data)
+    write_config(path, data)
     record_station_audit("production-on" if on else "production-off", who=who, config_dir=config_dir)
     return path
 
@@ -641,6 +255,7 @@ class RoleSession:
         current role on this station, one line; None when it may
         (:func:`inspector.approval.approval_problem`: in production mode the operator role runs
         only approved recipes)."""
+        # cycle: inspector.approval imports inspector.roles at its top
         from inspector.approval import approval_problem
 
         return approval_problem(recipe, role=self.role, config_dir=self.config_dir)
@@ -793,7 +408,7 @@ def _set_password_cmd(args) -> int:
     if password is None:
         _err("set-password: the two passwords differ; nothing changed")
         return 2
-    problem = _password_error(password)
+    problem = password_error(password)
     if problem:
         _err(f"set-password: {problem} (at least {MIN_PASSWORD_LENGTH}); nothing changed")
         return 2
@@ -832,8 +447,6 @@ def _production_cmd(args) -> int:
 
 
 def _audit_cmd(args) -> int:
-    from inspector.errors import InputError
-
     if args.last is not None and args.last < 1:
         _err(f"--last: expected a number >= 1, got {args.last}")
         return 2
@@ -844,7 +457,7 @@ def _audit_cmd(args) -> int:
         except InputError as e:
             _err(str(e))
             return 3
-        where = _audit_path(outdir, None)
+        where = audit_path(outdir, None)
         if not report.ok:
             _err(f"{where}: {report.summary()}")
             return 1

@@ -42,14 +42,27 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from inspector import exports, outputs
 from inspector.errors import InspectorError, RecipeError, StageError
 from inspector.manager import PluginManager
-from inspector.model import (SUMMARY_FIELDS, Alignment, BcpsPoints, Capture, DeviationStats, Evaluation,
-                             EvaluationSummary, InspectionResult, Reconstruction, Silhouette)
+from inspector.model import (
+    SUMMARY_FIELDS,
+    Alignment,
+    BcpsPoints,
+    Capture,
+    DeviationStats,
+    Evaluation,
+    EvaluationSummary,
+    InspectionResult,
+    Reconstruction,
+    Silhouette,
+)
+from inspector.names import printable
 from inspector.pipeline import InspectionContext
 from inspector.recipe import BUDGET_ENV, Recipe
 from inspector.reference import Reference
 from inspector.registry import OUTPUTS, Acquisition, StageSpec
+from inspector.truth import truth_stats
 from inspector.watchdog import StageAborted, StageTimeout, call_with_limit
 
 __all__ = ["ABORTED", "Outcome", "Executor", "LocalExecutor", "inspect_capture", "inspect_acquisition", "error_result",
@@ -105,8 +118,6 @@ def _summary(ctx: InspectionContext) -> dict[str, Any]:
             stats.update(EvaluationSummary.to_json(ctx.evaluation.summary))
         stats.update(ctx.evaluation.stats)
     if ctx.capture.truth is not None:
-        from inspector.truth import truth_stats
-
         t = truth_stats(
             ctx.capture,
             ctx.bcps.points if ctx.bcps is not None else None,
@@ -510,8 +521,6 @@ def record_outcome(outcome: Outcome, recipe: Recipe, pm: PluginManager, outdir: 
         ``outcome`` with its ``folder`` and the hooks' times; an ``"error"`` in one line when
         its result folder could not be written (a name such as ``..``, a full disk).
     """
-    from inspector import outputs
-
     folder = None
     if outdir is not None:
         try:
@@ -552,8 +561,6 @@ def run_batch(
     batch: the executor is closed, the acquisition iterator is not resumed, so a hot folder
     keeps that capture (in ``INBOX/processing/``, inspected again at the watcher's next start).
     """
-    from inspector import outputs
-
     executor = executor if executor is not None else LocalExecutor()
     outcomes = executor.execute(recipe, acquisitions, pm, reference=reference, should_abort=should_abort)
     try:
@@ -577,9 +584,6 @@ def _export_csv(result: InspectionResult, folder: Path, csv: bool) -> None:
     from an earlier run. They are extras: a failure (a full disk) is one warning line, the
     result stands."""
     import sys
-
-    from inspector import exports
-    from inspector.names import printable
 
     try:
         if csv:

@@ -28,12 +28,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from inspector import capture_folder, outputs, runner
+from inspector.capture_folder import expand
 from inspector.errors import InspectorError, RecipeError
+from inspector.history_store import recorded as in_history
 from inspector.manager import PluginManager, create_plugin_manager
+from inspector.names import folder_name
 from inspector.recipe import Recipe, load_recipe
 from inspector.reference import Reference
 from inspector.registry import Acquisition
-from inspector import runner
 from inspector.runner import ABORTED, Executor, Outcome, exit_status
 
 __all__ = [
@@ -340,12 +343,9 @@ class Session:
         discard what an unfinished inspection left (after a crash)."""
         import os
 
-        from inspector import outputs
-
         def recorded(name: str) -> bool | None:
             if "history" not in self.pm.plugin_names():
                 return None
-            from inspector.history_store import recorded as in_history
 
             return in_history(outdir, name)
 
@@ -368,8 +368,6 @@ class Session:
             total = source.watch.get("count") or source.limit or None
             return driver, driver.acquire(), total, f"watch {folder}", True
         if source.captures:
-            from inspector import capture_folder
-
             folders = capture_folders(source.captures)
             acquisitions = (capture_folder.named_acquisition(f, capture_folder.read_capture) for f in folders)
             total = min(len(folders), source.limit or len(folders))
@@ -461,9 +459,6 @@ def capture_folders(captures: Sequence[str]) -> list[Path]:
     """The capture folders of ``captures`` (capture folders, or folders of them: expanded),
     each once; two different folders with the same name would write the same result folder
     (OUTDIR/<name>/): RecipeError, naming both."""
-    from inspector.capture_folder import expand
-    from inspector.names import folder_name
-
     seen: dict[str, Path] = {}
     out = []
     for f in expand(list(captures)):

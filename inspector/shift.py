@@ -35,12 +35,13 @@ import sys
 from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, time, timedelta, tzinfo, UTC
+from datetime import UTC, datetime, time, timedelta, tzinfo
 from pathlib import Path
 from typing import Any
 
 from inspector.cell import cell_file, load_cell
 from inspector.errors import InputError, RecipeError
+from inspector.locale import gettext, number
 from inspector.params import build_params, param
 
 __all__ = ["ShiftSettings", "Shift", "RegionCount", "ErrorGroup", "CharacteristicCount", "ShiftCounters", "HISTORY_FILE",
@@ -59,8 +60,6 @@ _HHMM = re.compile(r"^([01]\d|2[0-3]):([0-5]\d)$")
 # installs Qt's translator, a command line the language of --lang.
 def _headless(context: str, text: str) -> str:
     """The headless language's text (:mod:`inspector.locale`: ``--lang``, ``$INSPECTOR_LANG``)."""
-    from inspector.locale import gettext
-
     return gettext(text)
 
 
@@ -77,6 +76,9 @@ def set_translator(func: Callable[[str, str], str] | None) -> None:
 def translate(context: str, text: str) -> str:
     """``text`` in the language of the installed translator (see :func:`set_translator`)."""
     return _translator(context, text)
+
+
+_installed = translate
 
 
 @dataclass(frozen=True)
@@ -431,14 +433,14 @@ def shift_counters(history: str | Path, settings: ShiftSettings | None = None, *
 
 # -- text ---------------------------------------------------------------------------------------
 def _pct(x: float | None) -> str:
-    from inspector.locale import number
-
     return "-" if x is None or not math.isfinite(x) else f"{number(100 * x, '.1f')} %"
 
 
-def format_shift(c: ShiftCounters, *, top: int = 5) -> str:
-    """One shift's counters as lines of text (``inspector history --shift``)."""
-    from inspector.locale import number
+def format_shift(c: ShiftCounters, *, top: int = 5, translate: Callable[[str, str], str] | None = None) -> str:
+    """One shift's counters as lines of text (``inspector history --shift``), translated by
+    ``translate(context, text)`` (default: the installed translator, :func:`translate`; the
+    name kept so that lupdate and Babel find the texts)."""
+    translate = translate or _installed
     s = c.shift
     lines = [translate("Shift", "shift {name} {start} to {end}").format(
         name=s.name, start=f"{s.start:%Y-%m-%d %H:%M}", end=f"{s.end:%H:%M}")]
@@ -459,9 +461,11 @@ def format_shift(c: ShiftCounters, *, top: int = 5) -> str:
     return "\n".join(lines)
 
 
-def format_shifts(counters: Sequence[ShiftCounters], *, top: int = 5) -> str:
-    """Several shifts' counters, oldest first, a blank line between them."""
-    return "\n\n".join(format_shift(c, top=top) for c in counters)
+def format_shifts(counters: Sequence[ShiftCounters], *, top: int = 5,
+                  translate: Callable[[str, str], str] | None = None) -> str:
+    """Several shifts' counters, oldest first, a blank line between them (``translate``: see
+    :func:`format_shift`)."""
+    return "\n\n".join(format_shift(c, top=top, translate=translate) for c in counters)
 
 
 def print_shifts(outdir: str | Path, *, shifts: int = 1, config: str | Path | None = None,
@@ -484,13 +488,7 @@ def print_shifts(outdir: str | Path, *, shifts: int = 1, config: str | Path | No
     except InputError as e:
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
-    global _translator
-    before, _translator = _translator, _headless  # the command's language (--lang), not a window's Qt translator
-    try:
-        text = format_shifts(counters)
-    finally:
-        _translator = before
-    print(text)
+    print(format_shifts(counters, translate=_headless))  # the command's language (--lang), not a window's Qt translator
     if pdf is not None:
         from inspector.shift_report import render_shift_pdf
 

@@ -45,13 +45,16 @@ import os
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import datetime, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from inspector.calibration.detect import capture_folders, find_cameras
+from inspector.capture_folder import BACKGROUND_DIR, RIG_FILE, decode_image, read_rig
 from inspector.errors import CaptureError, RecipeError
+from inspector.kernels.threads import map_threads
 
 __all__ = ["run_background", "average_fields", "FieldAverage", "MOVED_SIGMA", "MOVED_PCT", "DARK_PCT"]
 
@@ -170,8 +173,6 @@ def _kind(img: np.ndarray) -> str:
 
 def _check_rig(folder: Path, names: Sequence[str], sizes: dict[str, tuple[int, int]]) -> None:
     """A ``rig.json`` in ``folder`` must list exactly the cameras of the frames, at their sizes."""
-    from inspector.capture_folder import RIG_FILE, read_rig
-
     p = folder / RIG_FILE
     if not p.is_file():
         return
@@ -193,9 +194,6 @@ def _check_rig(folder: Path, names: Sequence[str], sizes: dict[str, tuple[int, i
 def run_background(args: argparse.Namespace) -> int:
     """``inspector calibrate --background --captures DIR --out FOLDER [--force] [--json]``."""
     import cv2
-
-    from inspector.calibration.solve import capture_folders, find_cameras
-    from inspector.capture_folder import BACKGROUND_DIR, decode_image
 
     for flag in ("target", "rig", "correct", "reference", "recipe", "report"):
         if getattr(args, flag, None):
@@ -223,8 +221,6 @@ def run_background(args: argparse.Namespace) -> int:
             if t.exists():
                 raise RecipeError(f"{t}: exists (use --force to replace the empty-field reference)")
     _say(f"averaging the empty field of {len(names)} cameras over {len(folders)} frame{'s' * (len(folders) != 1)}")
-    from inspector.kernels.threads import map_threads
-
     def one(name: str) -> FieldAverage:
         frames = []
         for i, f in enumerate(folders):

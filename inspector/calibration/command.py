@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 from inspector import hookimpl
 from inspector.errors import RecipeError
+from inspector.registry import CommandSpec
 
 if TYPE_CHECKING:
     from inspector.model import Rig
@@ -99,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
 
         return run_verify(args)
     if args.refine:
-        from inspector.calibration.refine import run_refine
+        from inspector.calibration.refine_command import run_refine
 
         return run_refine(args)
     if getattr(args, "background", False):
@@ -116,8 +117,6 @@ def run(args: argparse.Namespace) -> int:
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
     """``inspector calibrate``: a built-in plugin (entry point ``calibrate``), like ``feasibility``."""
-    from inspector.registry import CommandSpec
-
     registry.add(CommandSpec("calibrate", add_parser, run,
                              "commission the cameras: calibrate (ChArUco), verify with a gauge, refine from parts, "
                              "store the empty field"))

@@ -39,7 +39,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inspector.calibration.command import check_new_file, write_rig
+from inspector.calibration.refine import _check_folder, inspect_with_rig, load_inputs
 from inspector.errors import RecipeError
+from inspector.kernels.prior import fit_size_prior
 from inspector.model import Camera, Rig
 
 if TYPE_CHECKING:
@@ -59,8 +62,6 @@ def gauge_scale(points: np.ndarray, pose: np.ndarray, ref: Reference) -> float |
     """The scale (1: nominal) of the reference best fitting world ``points`` (N, 3) about
     ``pose`` (the stage's size model, without its test of significance); None when the fit
     fails (too few points, a size off by more than 5 %)."""
-    from inspector.kernels.prior import fit_size_prior
-
     V = ref.vertices
     local = ref.to_reference_frame(np.asarray(points, float), np.asarray(pose, float))
     prior = fit_size_prior(local, ref.distance, centre=0.5 * (V.min(axis=0) + V.max(axis=0)), robust_mm=0.1,
@@ -122,9 +123,6 @@ def _text(v: Verification) -> str:
 
 def run_verify(args: argparse.Namespace) -> int:
     """``inspector calibrate --verify REFERENCE --captures DIR --rig RIG [--correct OUT]``."""
-    from inspector.calibration.command import check_new_file, write_rig
-    from inspector.calibration.refine import _check_folder, inspect_with_rig, load_inputs
-
     if not args.rig:
         raise RecipeError("--verify: give --rig RIG.json (the rig to verify)")
     if args.out:

@@ -41,7 +41,6 @@ removed) before and after, and the turn and shift found; the rig is written whol
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
@@ -52,16 +51,23 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inspector.capture_folder import expand, is_capture_folder, parse_rig, read_capture, read_rig
 from inspector.errors import InspectorError, RecipeError
+from inspector.kernels import bcps as bk
 from inspector.kernels import silhouette_fit as sf
+from inspector.kernels.robust import tukey, tukey_loss
+from inspector.manager import create_plugin_manager
 from inspector.model import Camera, Rig
+from inspector.recipe import load_recipe
+from inspector.reference import Reference
+from inspector.resources import recipe_path
+from inspector.runner import inspect_capture
 
 if TYPE_CHECKING:
     from inspector.manager import PluginManager
     from inspector.recipe import Recipe
-    from inspector.reference import Reference
 
-__all__ = ["run_refine", "PartView", "Refinement", "refine_rig", "InspectedCapture", "inspect_with_rig",
+__all__ = ["PartView", "Refinement", "refine_rig", "InspectedCapture", "inspect_with_rig",
            "load_inputs", "placed_field", "ROBUST_PX"]
 
 #: Scale of the soft-L1 loss, px: residuals within it count fully, beyond it less and less.
@@ -311,8 +317,6 @@ def _loss(r: np.ndarray, c: float, kind: str) -> tuple[np.ndarray, np.ndarray]:
     if kind == "soft_l1":
         u = 1.0 + (r / c) ** 2
         return c * c * (np.sqrt(u) - 1.0), 1.0 / np.sqrt(u)
-    from inspector.kernels.robust import tukey, tukey_loss
-
     return c * c / 6.0 * tukey_loss(r, c), tukey(r, c)
 
 
@@ -421,6 +425,86 @@ def _median_abs(pb: _Problem, blocks: list[dict[str, Any]]) -> tuple[np.ndarray,
     return med, count
 
 
+def _descend(pb: _Problem, x: np.ndarray, blocks: list[dict[str, Any]], c: float, phase: str, *, iterations: int,
+             intrinsics: bool, it: int, costs: list[float], say: Callable[[str], None]
+             ) -> tuple[np.ndarray, list[dict[str, Any]], int, bool]:
+    """One phase of :func:`refine_rig`: Levenberg-Marquardt steps under the loss ``phase`` at
+    the scale ``c`` until no step lowers the cost, the step or the cost's decrease is small,
+    or ``iterations`` steps.
+
+    Parameters
+    ----------
+    pb : _Problem
+        The problem.
+    x : array
+        The parameters at the start of the phase.
+    blocks : list of dict
+        Their evaluation (:meth:`_Problem.evaluate`).
+    c : float
+        The loss's scale, px.
+    phase : str
+        ``"soft_l1"`` or ``"tukey"``.
+    iterations : int
+        Steps at most.
+    intrinsics : bool
+        The cameras' intrinsics are refined too (their steps count in the convergence test).
+    it : int
+        Steps taken before this phase (the progress lines count on).
+    costs : list of float
+        The cost at the start and after each step is appended to it.
+    say : callable
+        Receives the progress lines.
+
+    Returns
+    -------
+    x, blocks
+        The parameters at the end of the phase and their evaluation.
+    it : int
+        Steps taken, this phase's included.
+    converged : bool
+        Whether the phase ended converged (rather than out of iterations).
+    """
+    cost = _cost(blocks, c, phase) + 0.5 * float(x @ (pb.prior * x))
+    costs.append(cost)
+    lam = 1e-4
+    converged = False
+    for _ in range(iterations):
+        H, g = _normal_equations(pb, blocks, c, phase)
+        H, g = H + np.diag(pb.prior), g + pb.prior * x
+        A, _keep = _constraints(pb, x)
+        step_ok = False
+        for _ in range(8):
+            dx = _solve(H, g, A, -A @ x, lam)
+            trial = x + dx
+            new_blocks = pb.evaluate(trial, blocks)
+            new_cost = _cost(new_blocks, c, phase) + 0.5 * float(trial @ (pb.prior * trial))
+            if new_cost <= cost * (1.0 + 1e-9):
+                step_ok = True
+                break
+            lam = min(lam * 10.0, 1e6)
+        if not step_ok:  # no step lowers the cost: at its minimum
+            converged = True
+            break
+        it += 1
+        x, blocks = trial, new_blocks
+        turn, shift = pb.cam_px(dx)
+        step_px = float(max(np.linalg.norm(turn, axis=1).max(), np.linalg.norm(shift, axis=1).max()))
+        if intrinsics:
+            di = dx[: pb.C * pb.nc].reshape(pb.C, pb.nc)[:, 6:]
+            step_px = max(step_px, float(np.abs(di).max()) * 0.1)  # a px of focal length moves the part's image ~0.04 px
+        rel = (cost - new_cost) / max(cost, 1e-12)
+        cost = new_cost
+        costs.append(cost)
+        lam = max(lam / 3.0, 1e-7)
+        med, _ = _median_abs(pb, blocks)
+        say(f"refine: iteration {it} ({phase.replace('_', '-')} at {c:.3f} px): median |residual| "
+            f"{float(np.nanmedian(med)):.4f} px, worst camera {float(np.nanmax(med)):.4f} px, step {step_px:.4f} px")
+        if step_px < CONVERGED_PX or rel < 1e-7:
+            converged = True
+            break
+    return x, blocks, it, converged
+
+
 def refine_rig(rig: Rig, parts: Sequence[PartView], index: Any, *, intrinsics: bool = False,
                robust_px: float = ROBUST_PX, iterations: int = ITERATIONS,
                progress: Progress | None = None) -> Refinement:
@@ -472,44 +556,8 @@ def refine_rig(rig: Rig, parts: Sequence[PartView], index: Any, *, intrinsics: b
         else:
             every = np.concatenate([b["r"][b["ok"]] - np.median(b["r"][b["ok"]]) for b in blocks if b["ok"].any()])
             c = max(TUKEY_SIGMAS * 1.4826 * float(np.median(np.abs(every))), TUKEY_FLOOR_PX)
-        cost = _cost(blocks, c, phase) + 0.5 * float(x @ (pb.prior * x))
-        costs.append(cost)
-        lam = 1e-4
-        converged = False
-        for _ in range(iterations):
-            H, g = _normal_equations(pb, blocks, c, phase)
-            H, g = H + np.diag(pb.prior), g + pb.prior * x
-            A, _keep = _constraints(pb, x)
-            step_ok = False
-            for _ in range(8):
-                dx = _solve(H, g, A, -A @ x, lam)
-                trial = x + dx
-                new_blocks = pb.evaluate(trial, blocks)
-                new_cost = _cost(new_blocks, c, phase) + 0.5 * float(trial @ (pb.prior * trial))
-                if new_cost <= cost * (1.0 + 1e-9):
-                    step_ok = True
-                    break
-                lam = min(lam * 10.0, 1e6)
-            if not step_ok:  # no step lowers the cost: at its minimum
-                converged = True
-                break
-            it += 1
-            x, blocks = trial, new_blocks
-            turn, shift = pb.cam_px(dx)
-            step_px = float(max(np.linalg.norm(turn, axis=1).max(), np.linalg.norm(shift, axis=1).max()))
-            if intrinsics:
-                di = dx[: pb.C * pb.nc].reshape(pb.C, pb.nc)[:, 6:]
-                step_px = max(step_px, float(np.abs(di).max()) * 0.1)  # a px of focal length moves the part's image ~0.04 px
-            rel = (cost - new_cost) / max(cost, 1e-12)
-            cost = new_cost
-            costs.append(cost)
-            lam = max(lam / 3.0, 1e-7)
-            med, _ = _median_abs(pb, blocks)
-            say(f"refine: iteration {it} ({phase.replace('_', '-')} at {c:.3f} px): median |residual| "
-                f"{float(np.nanmedian(med)):.4f} px, worst camera {float(np.nanmax(med)):.4f} px, step {step_px:.4f} px")
-            if step_px < CONVERGED_PX or rel < 1e-7:
-                converged = True
-                break
+        x, blocks, it, converged = _descend(pb, x, blocks, c, phase, iterations=iterations, intrinsics=intrinsics,
+                                           it=it, costs=costs, say=say)
     after, count = _median_abs(pb, pb.evaluate(x))  # every ray searched in full
     turn_px, _ = pb.cam_px(x)
     P = x[: pb.C * pb.nc].reshape(pb.C, pb.nc)
@@ -553,12 +601,6 @@ def load_inputs(captures: str, reference: str, recipe: str | None, rig_path: str
                 what: str) -> tuple[Rig, list[Path], Recipe, Reference, PluginManager]:
     """The rig, the capture folders, the recipe, the reference and the plugin manager, each
     checked (RecipeError, one line)."""
-    from inspector.manager import create_plugin_manager
-    from inspector.recipe import load_recipe
-    from inspector.reference import Reference
-    from inspector.resources import recipe_path
-    from inspector.capture_folder import expand, is_capture_folder, read_rig
-
     try:
         rig = read_rig(rig_path)
     except InspectorError as e:
@@ -584,8 +626,6 @@ def load_inputs(captures: str, reference: str, recipe: str | None, rig_path: str
 
 def _read_with_rig(folder: Path, rig: Rig) -> Any:
     """The capture in ``folder`` with ``rig`` in place of its own (same cameras and image sizes)."""
-    from inspector.capture_folder import read_capture
-
     try:
         cap = read_capture(folder)
     except InspectorError as e:
@@ -615,8 +655,6 @@ def _placement(pose: np.ndarray, size: Any) -> tuple[np.ndarray, float]:
 
 def part_view(ctx: Any, name: str, stride: int = STRIDE) -> PartView:
     """What the refinement needs of an inspected capture's context."""
-    from inspector.kernels import bcps as bk
-
     rig = ctx.capture.rig
     recon = ctx.reconstruction
     place, s = _placement(ctx.alignment.pose, ctx.bcps.size if ctx.bcps is not None else None)
@@ -639,8 +677,6 @@ def part_view(ctx: Any, name: str, stride: int = STRIDE) -> PartView:
 def inspect_with_rig(folders: Sequence[Path], rig: Rig, recipe: Recipe, ref: Reference, pm: PluginManager, *,
                      progress: Progress | None = None, label: str = "inspect") -> list[InspectedCapture]:
     """Inspect each capture folder with ``rig`` (in place of its own); one line each."""
-    from inspector.runner import inspect_capture
-
     say = progress or (lambda _line: None)
     out = []
     for j, folder in enumerate(folders):
@@ -669,104 +705,11 @@ def inspect_with_rig(folders: Sequence[Path], rig: Rig, recipe: Recipe, ref: Ref
     return out
 
 
-# ---------------------------------------------------------------------------------- command
-
-
-def _report(ref: Refinement, rig: Rig, used: list[str], left_out: list[str], seconds: float) -> dict[str, Any]:
-    def num(v: float) -> float | None:
-        return round(float(v), 4) if np.isfinite(v) else None
-
-    cams = {}
-    for i, c in enumerate(rig.cameras):
-        e: dict[str, Any] = {"before_px": num(ref.before_px[i]), "after_px": num(ref.after_px[i]),
-                             "turn_px": num(ref.turn_px[i]),
-                             "turn_mrad": [round(float(v) * 1e3, 5) for v in ref.turn[i]],
-                             "shift_mm": [round(float(v), 4) for v in ref.shift_mm[i]], "rays": int(ref.rays[i])}
-        if ref.intrinsics is not None:
-            e["intrinsics_px"] = dict(zip(sf.INTRINSICS, (round(float(v), 3) for v in ref.intrinsics[i])))
-        cams[c.name] = e
-    return {
-        "captures": used, "left_out": left_out, "intrinsics": ref.intrinsics is not None,
-        "iterations": ref.iterations, "converged": ref.converged, "seconds": round(seconds, 1),
-        "robust_px": ROBUST_PX, "gauge_cameras": list(ref.gauge_cameras),
-        "offset_mm": {n: round(float(v), 5) for n, v in zip(used, ref.offset_mm)},
-        "median_before_px": num(float(np.nanmedian(ref.before_px))),
-        "median_after_px": num(float(np.nanmedian(ref.after_px))),
-        "cameras": cams,
-    }
-
-
-def _text(report: dict[str, Any], out: Path) -> str:
-    lines = [f"refined from {len(report['captures'])} captures in {report['iterations']} iterations"
-             f"{'' if report['converged'] else ' (not converged)'}, {report['seconds']} s "
-             f"({report['seconds_inspect']} s inspecting, {report['seconds_refine']} s refining); "
-             f"median |residual| {report['median_before_px']} -> {report['median_after_px']} px"]
-    if report["left_out"]:
-        lines.append(f"left out (inspection failed): {', '.join(report['left_out'])}")
-    lines.append(f"{'camera':<10} {'before px':>10} {'after px':>10} {'turn px':>9} {'shift mm':>9}")
-    for name, c in report["cameras"].items():
-        sh = float(np.linalg.norm(c["shift_mm"]))
-
-        def fmt(v: float | None) -> str:
-            return "-" if v is None else f"{v:.3f}"
-        lines.append(f"{name:<10} {fmt(c['before_px']):>10} {fmt(c['after_px']):>10} {fmt(c['turn_px']):>9} "
-                     f"{sh:>9.4f}")
-    off = [n for n in report["cameras"] if n not in report["gauge_cameras"]]
-    if off:
-        lines.append(f"frame held by the other cameras (these moved apart from them): {', '.join(off)}")
-    lines.append(f"wrote {out}")
-    return "\n".join(lines)
-
-
-def run_refine(args: argparse.Namespace) -> int:
-    """``inspector calibrate --refine RIG --captures DIR --reference MESH --out RIG2``."""
-    from inspector.calibration.command import check_new_file, write_rig
-
-    if not args.out:
-        raise RecipeError("--refine: give --out RIG2.json (the refined rig to write)")
-    if not args.reference:
-        raise RecipeError("--refine: give --reference MESH (the parts' reference mesh, or builtin:NAME)")
-    if args.rig or args.correct:
-        raise RecipeError("--refine: --rig and --correct belong to --verify (the rig to refine is --refine RIG)")
-    out = check_new_file(args.out, args.force, "refined rig")
-    if Path(args.refine).resolve() == out.resolve():
-        raise RecipeError(f"{out}: is the input rig; write the refined rig to another file")
-    rig, folders, recipe, ref, pm = load_inputs(args.captures, args.reference, args.recipe, args.refine, "--refine")
-    quiet = bool(getattr(args, "json", False))
-
-    def say(line: str) -> None:
-        if not quiet:
-            print(line, flush=True)
-
-    t0 = time.perf_counter()
-    for f in folders:  # every folder is checked before the first inspection
-        _check_folder(f, rig)
-    done = inspect_with_rig(folders, rig, recipe, ref, pm, progress=say)
-    good = [d for d in done if d.view is not None]
-    if not good:
-        raise RecipeError(f"--captures {args.captures}: no capture could be inspected "
-                          f"({done[0].error if done else 'none'})")
-    t1 = time.perf_counter()
-    result = refine_rig(rig, [d.view for d in good if d.view is not None], ref.distance,
-                        intrinsics=bool(args.intrinsics), progress=say)
-    seconds = time.perf_counter() - t0
-    report = _report(result, rig, [d.name for d in good], [d.name for d in done if d.view is None], seconds)
-    report["seconds_inspect"] = round(t1 - t0, 1)
-    report["seconds_refine"] = round(time.perf_counter() - t1, 1)
-    report.update({"input_rig": str(args.refine), "reference": str(args.reference),
-                   "recipe": str(recipe.path) if recipe.path is not None else recipe.name})
-    write_rig(result.rig, out, {"refinement": report})
-    if quiet:
-        print(json.dumps({**report, "out": str(out)}, indent=1))
-    else:
-        print(_text(report, out))
-    return 0
+# ---------------------------------------------------------------------------------- the folders
 
 
 def _check_folder(folder: Path, rig: Rig) -> None:
     """The capture folder's cameras are the rig's (its rig.json names them), without reading images."""
-    from inspector.capture_folder import parse_rig
-
     try:
         theirs = parse_rig(json.loads((folder / "rig.json").read_text(encoding="utf-8")), "rig.json")
     except (InspectorError, ValueError, OSError) as e:

@@ -14,7 +14,7 @@ command's own benchmark, also in ``report.json`` ``timings_s``):
    predefined dictionary: the same ids, ten times faster than the 1000-marker dictionary),
    split by board (``id // markers_per_board``), and each board's ChArUco corners are
    interpolated and refined by ``cv2.aruco.CharucoDetector(target.board(b))``. A board seen
-   with fewer than :data:`MIN_CORNERS` corners is dropped. Each board's markers must fit
+   with fewer than :data:`~inspector.calibration.detect.MIN_CORNERS` corners is dropped. Each board's markers must fit
    one homography: boards that do not (a description whose squares or marker size do not
    match the print) make the command refuse the target, as do markers of another
    dictionary (looked for only when nothing is found).
@@ -43,6 +43,8 @@ command's own benchmark, also in ``report.json`` ``timings_s``):
 7. **Report** (:mod:`.report`): text on stdout (or JSON with ``--json``), ``report.json`` and
    pictures in ``--report`` (default ``<out stem>_report/`` beside the rig).
 
+Stages 1 and 2 are :mod:`.detect`'s, stage 3 :mod:`.initial`'s; stage 7's text :mod:`.report`'s.
+
 Every bad input is one line, exit 2 (:class:`~inspector.errors.RecipeError`), before anything
 is written: no target in the images, a camera that never sees it, a description that does not
 match the images, a target TOML with a wrong key, no ``--out``, no capture folder.
@@ -53,29 +55,35 @@ from __future__ import annotations
 import argparse
 import contextlib
 import ctypes
-import heapq
+import json
 import os
 import sys
-import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from datetime import datetime, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from inspector.calibration import report as rep
+from inspector.calibration.command import check_new_file, write_rig
+from inspector.calibration.detect import (
+    BoardView,
+    _diagnose_nothing,
+    capture_folders,
+    detect,
+    find_cameras,
+)
+from inspector.calibration.initial import _initial_intrinsics, _initial_poses
 from inspector.calibration.target import Target, load_target
-from inspector.errors import CaptureError, RecipeError
+from inspector.errors import RecipeError
 from inspector.kernels import calibration as kc
+from inspector.model import Camera, Rig
 
-__all__ = ["run_calibrate", "calibrate", "find_cameras", "capture_folders", "detect", "Calibration",
-           "BoardView", "MIN_CORNERS", "FREE_INTRINSICS", "timing_line", "STAGES"]
+__all__ = ["run_calibrate", "calibrate", "Calibration", "FREE_INTRINSICS"]
 
-#: A board is kept in a view only with this many corners.
-MIN_CORNERS = 6
 #: Intrinsics the bundle adjustment adjusts for every camera (the others stay at 0) ...
 FREE_INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "p1", "p2")
 #: ... and k2 (k3) too for a camera whose image corners lie farther than this from its axis
@@ -100,11 +108,6 @@ WEIGHT_ANGLE_DEG = 45.0
 #: printed smaller or larger than described (4 mm described as 5: 0.11) pass: the corners are
 #: the chessboard's, whatever the markers' size.
 MISMATCH = 0.25
-#: Dictionaries looked for when the target's finds nothing (the largest of each family: the
-#: smaller ones are their first ids).
-_OTHER_DICTIONARIES = ("DICT_4X4_1000", "DICT_5X5_1000", "DICT_6X6_1000", "DICT_7X7_1000", "DICT_ARUCO_ORIGINAL",
-                       "DICT_APRILTAG_36h11", "DICT_ARUCO_MIP_36h12")
-
 
 # --------------------------------------------------------------------------- small helpers
 
@@ -150,350 +153,6 @@ def _one_blas_thread() -> Iterator[None]:
         for set_fn, n in handles:
             with contextlib.suppress(Exception):
                 set_fn(ctypes.c_int(n))
-
-
-def _natural_key(name: str) -> tuple[Any, ...]:
-    import re
-
-    return tuple(int(s) if s.isdigit() else s for s in re.split(r"(\d+)", name))
-
-
-# --------------------------------------------------------------------------- inputs
-
-
-def capture_folders(root: Path) -> list[Path]:
-    """The capture folders of ``root`` (its sub-folders holding ``images/``, in name order),
-    or ``[root]`` when it is one itself."""
-    if not root.exists():
-        raise RecipeError(f"--captures {root}: no such folder")
-    if not root.is_dir():
-        raise RecipeError(f"--captures {root}: not a folder")
-    if (root / "images").is_dir():
-        return [root]
-    try:
-        subs = [p for p in root.iterdir() if not p.name.startswith(".") and p.is_dir() and (p / "images").is_dir()]
-    except OSError as e:
-        raise RecipeError(f"--captures {root}: cannot be listed ({e.strerror or e})") from None
-    if not subs:
-        raise RecipeError(f"--captures {root}: no capture folder in it (one folder per target pose, each with "
-                          "images/<camera>.png)")
-    return sorted(subs, key=lambda p: _natural_key(p.name))
-
-
-def find_cameras(folders: Sequence[Path]) -> tuple[list[str], dict[str, tuple[int, int]], dict[tuple[int, str], Path]]:
-    """Camera names (in a ``rig.json``'s order when one lists them all, else name order), each
-    camera's ``(width, height)`` from its PNG headers, and ``{(capture, camera): image}``."""
-    from inspector.capture_folder import png_header
-
-    sizes: dict[str, tuple[int, int]] = {}
-    where: dict[str, str] = {}
-    images: dict[tuple[int, str], Path] = {}
-    for i, folder in enumerate(folders):
-        for p in sorted((folder / "images").iterdir()):
-            if p.name.startswith(".") or p.suffix.lower() != ".png" or not p.is_file():
-                continue
-            label = f"{folder.name}/images/{p.name}"
-            try:
-                with open(p, "rb") as f:
-                    w, h, _, _ = png_header(f.read(33), label, RecipeError)
-            except OSError as e:
-                raise RecipeError(f"{label}: cannot be read ({e.strerror or e})") from None
-            name = p.stem
-            if name in sizes and sizes[name] != (w, h):
-                raise RecipeError(f"{label}: {w}x{h}, but camera {name} is {sizes[name][0]}x{sizes[name][1]} in {where[name]}")
-            sizes.setdefault(name, (w, h))
-            where.setdefault(name, label)
-            images[(i, name)] = p
-    if not sizes:
-        raise RecipeError(f"{folders[0].parent}: no image in its capture folders (images/<camera>.png)")
-    names = sorted(sizes, key=_natural_key)
-    for folder in folders:
-        rig_order = _rig_order(folder)
-        if rig_order is not None and set(rig_order) == set(names):
-            names = rig_order
-            break
-    return names, sizes, images
-
-
-def _rig_order(folder: Path) -> list[str] | None:
-    import json
-
-    p = folder / "rig.json"
-    if not p.is_file():
-        return None
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-        return [str(c["name"]) for c in data["cameras"]]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-
-
-def _fallback_rig(folders: Sequence[Path]) -> dict[str, Any]:
-    """Cameras of the first readable ``rig.json`` of the captures, by name (fallback guesses)."""
-    from inspector.capture_folder import read_rig
-
-    for folder in folders:
-        if (folder / "rig.json").is_file():
-            try:
-                return {c.name: c for c in read_rig(folder / "rig.json")}
-            except CaptureError:
-                continue
-    return {}
-
-
-# --------------------------------------------------------------------------- detection
-
-
-@dataclass
-class BoardView:
-    """One board seen by one camera in one capture."""
-
-    capture: int
-    camera: int
-    board: int
-    ids: np.ndarray  # (k,) global corner ids (rows of target.object_points())
-    uv: np.ndarray  # (k, 2) pixels
-    markers: int
-    homography_px: float  # RMS of the markers' corners about one homography, in marker sides
-    angle_deg: float = float("nan")  # between the board's normal and the line of sight (initial pose)
-
-
-@dataclass
-class _Detected:
-    boards: list[BoardView] = field(default_factory=list)
-    markers: int = 0
-
-
-class _Detectors(threading.local):
-    def __init__(self, target: Target) -> None:
-        import cv2
-
-        n = target.markers_per_board * target.n_boards
-        full = target.cv_dictionary()
-        own = cv2.aruco.Dictionary(full.bytesList[:n], full.markerSize, full.maxCorrectionBits)
-        self.markers = cv2.aruco.ArucoDetector(own, cv2.aruco.DetectorParameters())
-        self.boards = [cv2.aruco.CharucoDetector(target.board(b)) for b in range(target.n_boards)]
-
-
-def _grey8(img: np.ndarray) -> np.ndarray:
-    import cv2
-
-    if img.ndim == 3:
-        code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-        img = cv2.cvtColor(img, code)
-    if img.dtype == np.uint16:
-        img = (img >> 8).astype(np.uint8)
-    return np.ascontiguousarray(img)
-
-
-def _homography_rms(obj: np.ndarray, img: np.ndarray) -> float:
-    import cv2
-
-    H, _ = cv2.findHomography(obj.astype(np.float64), img.astype(np.float64), 0)
-    if H is None:
-        return float("inf")
-    p = cv2.perspectiveTransform(obj.reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
-    return float(np.sqrt(np.mean(np.sum((p - img) ** 2, axis=1))))
-
-
-def _detect_one(grey: np.ndarray, target: Target, det: _Detectors, capture: int, camera: int) -> _Detected:
-    corners, ids, _ = det.markers.detectMarkers(grey)
-    out = _Detected()
-    if ids is None or not len(ids):
-        return out
-    ids = ids.ravel().astype(np.int32)
-    out.markers = int(len(ids))
-    m = target.markers_per_board
-    for b in range(target.n_boards):
-        sel = np.flatnonzero(ids // m == b)
-        if len(sel) < 2:
-            continue
-        mc = [np.asarray(corners[int(i)], np.float32).reshape(1, 4, 2) for i in sel]
-        cc, ci, _, _ = det.boards[b].detectBoard(grey, markerCorners=mc, markerIds=ids[sel].reshape(-1, 1))
-        if ci is None or len(ci) < MIN_CORNERS:
-            continue
-        board = target.board(b)
-        objs = board.getObjPoints()
-        ob = np.concatenate([np.asarray(objs[int(ids[i]) - b * m], float)[:, :2] for i in sel])
-        im = np.concatenate([c.reshape(4, 2) for c in mc]).astype(float)
-        quads = im.reshape(-1, 4, 2)
-        side = float(np.mean(np.linalg.norm(quads - np.roll(quads, 1, axis=1), axis=2)))
-        out.boards.append(BoardView(capture, camera, b, target.corner_ids(b, ci.ravel()),
-                                    np.asarray(cc, float).reshape(-1, 2), int(len(sel)), _homography_rms(ob, im) / max(side, 1e-9)))
-    return out
-
-
-def detect(target: Target, jobs: Sequence[tuple[int, int, Path, tuple[int, int], str]],
-           on_done: Callable[[int], None] | None = None) -> tuple[list[BoardView], dict[tuple[int, int], int]]:
-    """Detect the target's boards in every image of ``jobs`` ``(capture, camera, path, size,
-    label)``, on one thread per core. Returns the boards seen (at least :data:`MIN_CORNERS`
-    corners) and the markers found per ``(capture, camera)``."""
-    from inspector.capture_folder import decode_image
-
-    local: dict[int, _Detectors] = {}
-    lock = threading.Lock()
-
-    def detectors() -> _Detectors:
-        k = threading.get_ident()
-        with lock:
-            if k not in local:
-                local[k] = _Detectors(target)
-            return local[k]
-
-    def work(job: tuple[int, int, Path, tuple[int, int], str]) -> tuple[int, int, _Detected]:
-        i, j, path, size, label = job
-        img = decode_image(path, label, CaptureError, size=size)
-        return i, j, _detect_one(_grey8(img), target, detectors(), i, j)
-
-    boards: list[BoardView] = []
-    markers: dict[tuple[int, int], int] = {}
-    workers = max(1, min(len(jobs), os.cpu_count() or 1))
-    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="calibrate-detect") as pool:
-        for i, j, d in pool.map(work, jobs):
-            boards += d.boards
-            markers[(i, j)] = d.markers
-            if on_done is not None:
-                on_done(i)
-    return boards, markers
-
-
-def _diagnose_nothing(target: Target, jobs: Sequence[tuple[int, int, Path, tuple[int, int], str]], root: Path) -> RecipeError:
-    """Why no board was found: markers of the target's dictionary with other ids, of another
-    dictionary (the description does not match), or no marker at all (no target)."""
-    import cv2
-
-    from inspector.capture_folder import decode_image
-
-    # a few images spread over the captures and cameras
-    sample = list(jobs)[:: max(1, len(jobs) // 6)][:6]
-    greys = [_grey8(decode_image(p, label, CaptureError, size=size)) for _, _, p, size, label in sample]
-    n_own = target.markers_per_board * target.n_boards
-    params = cv2.aruco.DetectorParameters()
-    full = cv2.aruco.ArucoDetector(target.cv_dictionary(), params)
-    seen: list[int] = []
-    for g in greys:
-        _, ids, _ = full.detectMarkers(g)
-        if ids is not None:
-            seen += [int(x) for x in ids.ravel()]
-    if seen and max(seen) >= n_own:
-        return RecipeError(f"the target description does not match the images: {target.dictionary} markers with ids up to "
-                           f"{max(seen)} found, but the target ({target.source}) has ids 0..{n_own - 1}: check its "
-                           "dictionary and squares")
-    if seen:
-        return RecipeError(f"the target description does not match the images: {len(seen)} {target.dictionary} markers "
-                           f"found in {len(greys)} images, but no board of {target.source} fits them: check its squares, "
-                           "square_mm and marker_mm")
-    for name in _OTHER_DICTIONARIES:
-        if name == target.dictionary or not hasattr(cv2.aruco, name):
-            continue
-        det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)), params)
-        hits = 0
-        for g in greys[:3]:
-            _, ids, _ = det.detectMarkers(g)
-            hits += 0 if ids is None else len(ids)
-        if hits >= 3:
-            return RecipeError(f"the target description does not match the images: they show markers of {name}, "
-                               f"{target.source} says {target.dictionary}")
-    return RecipeError(f"{root}: no target in the images (no {target.dictionary} marker in {len(jobs)} images): "
-                       "are these captures of the target?")
-
-
-# --------------------------------------------------------------------------- initialisation
-
-
-def _rt_to_T(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = kc.rodrigues(np.ravel(rvec))
-    T[:3, 3] = np.ravel(tvec)
-    return T
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = T[:3, :3].T
-    out[:3, 3] = -T[:3, :3].T @ T[:3, 3]
-    return out
-
-
-def _init_intrinsics(target: Target, views: list[BoardView], size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, float]:
-    """``K`` (3, 3), ``dist`` (5,) and RMS px of ``cv2.calibrateCamera`` over a camera's boards."""
-    import cv2
-
-    local = target.board_corners().astype(np.float32)
-    C = target.corners_per_board
-    # the boards with most corners, at most 60 (plenty for a first guess)
-    use = sorted(views, key=lambda v: -len(v.ids))[:60]
-    obj = [local[v.ids - v.board * C] for v in use]
-    img = [v.uv.astype(np.float32) for v in use]
-    flags = cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST
-    rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, size, None, None, flags=flags)
-    d = np.zeros(5)
-    d[: min(5, np.size(dist))] = np.ravel(dist)[:5]
-    return np.asarray(K, float), d, float(rms)
-
-
-def _solve_view(target: Target, obj_all: np.ndarray, views: list[BoardView], K: np.ndarray, dist: np.ndarray
-                ) -> tuple[np.ndarray, float] | None:
-    """Body -> camera transform of one view (all its boards) and its RMS px, or None."""
-    import cv2
-
-    best = max(views, key=lambda v: len(v.ids))
-    C = target.corners_per_board
-    local = target.board_corners()[best.ids - best.board * C]
-    ok, rvecs, tvecs, _ = cv2.solvePnPGeneric(local.astype(np.float64), best.uv.astype(np.float64), K, dist,
-                                              flags=cv2.SOLVEPNP_IPPE)[:4]
-    if not ok:
-        return None
-    ids = np.concatenate([v.ids for v in views])
-    uv = np.concatenate([v.uv for v in views]).astype(np.float64)
-    X = obj_all[ids].astype(np.float64)
-    face = target.faces[best.board]
-    found = None
-    for rv, tv in zip(rvecs, tvecs):
-        T = _rt_to_T(rv, tv) @ _inv(face)  # body -> camera
-        r0 = kc.rotvec(T[:3, :3]).reshape(3, 1)
-        t0 = T[:3, 3].reshape(3, 1).copy()
-        if np.any((X @ T[:3, :3].T + T[:3, 3])[:, 2] <= 0):
-            continue
-        r1, t1 = cv2.solvePnPRefineLM(X, uv, K, dist, r0, t0)
-        p, _ = cv2.projectPoints(X, r1, t1, K, dist)
-        rms = float(np.sqrt(np.mean(np.sum((p.reshape(-1, 2) - uv) ** 2, axis=1))))
-        if found is None or rms < found[1]:
-            found = (_rt_to_T(r1, t1), rms)
-    return found
-
-
-def _spanning_tree(n_cams: int, n_caps: int, edges: dict[tuple[int, int], float], root_pose: int
-                   ) -> list[tuple[str, int, int]]:
-    """Maximum spanning tree of the camera-pose graph from pose ``root_pose`` (Prim): the order
-    in which to place nodes, ``("cam", c, via_pose)`` or ``("pose", p, via_cam)``."""
-    by_cam: dict[int, list[tuple[int, float]]] = {}
-    by_pose: dict[int, list[tuple[int, float]]] = {}
-    for (c, p), w in edges.items():
-        by_cam.setdefault(c, []).append((p, w))
-        by_pose.setdefault(p, []).append((c, w))
-    done_c: set[int] = set()
-    done_p = {root_pose}
-    heap: list[tuple[float, str, int, int]] = [(-w, "cam", c, root_pose) for c, w in by_pose.get(root_pose, [])]
-    heapq.heapify(heap)
-    order: list[tuple[str, int, int]] = []
-    while heap:
-        _, kind, node, via = heapq.heappop(heap)
-        if kind == "cam":
-            if node in done_c:
-                continue
-            done_c.add(node)
-            order.append(("cam", node, via))
-            heap_items = [(-w, "pose", p, node) for p, w in by_cam.get(node, []) if p not in done_p]
-        else:
-            if node in done_p:
-                continue
-            done_p.add(node)
-            order.append(("pose", node, via))
-            heap_items = [(-w, "cam", c, node) for c, w in by_pose.get(node, []) if c not in done_c]
-        for item in heap_items:
-            heapq.heappush(heap, item)
-    return order
 
 
 # --------------------------------------------------------------------------- the calibration
@@ -553,6 +212,75 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     root = root if root is not None else (folders[0].parent if folders else Path("."))
+    names, sizes, views, markers = _detect_boards(target, folders, root, progress, timings, t0)
+
+    # --- intrinsics per camera, target pose in each view
+    t1 = time.perf_counter()
+    Ks, dists, notes = _initial_intrinsics(target, folders, names, sizes, views, markers, progress)
+    obj_all, view_T, cam_T, pose_T, anchor = _initial_poses(target, names, len(folders), views, Ks, dists, root)
+    timings["initialise_s"] = time.perf_counter() - t1
+    progress(f"initialised {len(names)} cameras and {len(pose_T)} target poses ({timings['initialise_s']:.1f} s)")
+
+    # --- the bundle adjustment
+    t2 = time.perf_counter()
+    b = _observations(names, sizes, views, view_T, cam_T, pose_T, Ks, dists, free_intrinsics, max_angle_deg,
+                      weight_angle_deg, progress)
+    prob, res = _adjust(obj_all, names, views, anchor, b, reject_factor, reject_rounds, progress)
+    timings["adjust_s"] = time.perf_counter() - t2
+
+    # --- uncertainty
+    t3 = time.perf_counter()
+    cb, sigma, cen_std, ang_std, intr_std = _uncertainty(prob, b.params, len(names))
+    timings["covariance_s"] = time.perf_counter() - t3
+    progress(f"uncertainty of every camera's position and orientation ({timings['covariance_s']:.1f} s)")
+
+    K_out, R_out, t_out, poses_out = _output_frame(prob, b, cb, len(names))
+    residuals, kept_views, rejected = _view_residuals(obj_all, names, folders, views, prob, b)
+    timings["total_s"] = time.perf_counter() - t0
+    return Calibration(
+        names=names, sizes=sizes, captures=[f.name for f in folders], K=K_out, dist=cb[:, 4:9].copy(), R=R_out, t=t_out,
+        poses=poses_out, views=views, kept=kept_views, residuals=residuals, rejected=rejected,
+        reject_threshold_px=b.thr, rms_px=res.rms_px, iterations=b.iterations, sigma_px=sigma, centre_std_mm=cen_std,
+        angle_std_deg=ang_std, intrinsic_std=intr_std, notes=notes, timings=timings, target=target,
+        max_angle_deg=max_angle_deg)
+
+
+def _detect_boards(target: Target, folders: Sequence[Path], root: Path, progress: Callable[[str], None],
+                   timings: dict[str, float], t0: float
+                   ) -> tuple[list[str], list[tuple[int, int]], list[BoardView], dict[tuple[int, int], int]]:
+    """Stages 1 and 2 of :func:`calibrate`: the cameras and the boards they see.
+
+    Parameters
+    ----------
+    target : Target
+        The calibration target.
+    folders : sequence of Path
+        The capture folders, one per target pose.
+    root : Path
+        Their parent, named in the error when no board is found.
+    progress : callable
+        Receives the progress lines.
+    timings : dict
+        ``detect_s`` is set in it (seconds since ``t0``).
+    t0 : float
+        :func:`time.perf_counter` at the start of the calibration.
+
+    Returns
+    -------
+    names : list of str
+        The cameras.
+    sizes : list of (int, int)
+        Each camera's ``(width, height)``.
+    views : list of BoardView
+        The boards seen whose markers fit one homography.
+    markers : dict
+        Markers found per ``(capture, camera)``.
+
+    Raises
+    ------
+    RecipeError
+        No board found, or the description does not match the images.
+    """
     names, sizes_by, images = find_cameras(folders)
     sizes = [sizes_by[n] for n in names]
     jobs = [(i, j, images[(i, n)], sizes_by[n], f"{folders[i].name}/images/{n}.png")
@@ -585,100 +313,60 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
     views = [v for v, g in zip(views, good) if g]
     n_corners = sum(len(v.ids) for v in views)
     progress(f"found {len(views)} boards, {n_corners} corners (detection {timings['detect_s']:.1f} s)")
+    return names, sizes, views, markers
 
-    # --- intrinsics per camera
-    t1 = time.perf_counter()
-    by_cam: dict[int, list[BoardView]] = {}
-    for v in views:
-        by_cam.setdefault(v.camera, []).append(v)
-    for j, n in enumerate(names):
-        if j not in by_cam:
-            seen = sum(1 for (i, jj), m in markers.items() if jj == j and m)
-            why = (f"markers in {seen} images but never {MIN_CORNERS} corners of a board" if seen
-                   else f"no marker in any of its {sum(1 for (i, jj) in markers if jj == j)} images")
-            raise RecipeError(f"camera {n} never sees the target ({why}): show the target to {n}, or remove its images")
-    notes: list[str] = []
-    progress(f"initialising {len(names)} cameras (intrinsics, target poses, camera graph)")
-    fallback: dict[str, Any] | None = None
-    Ks = np.zeros((len(names), 3, 3))
-    dists = np.zeros((len(names), 5))
 
-    def init_one(j: int) -> tuple[np.ndarray, np.ndarray, float] | None:
-        try:
-            K, d, rms = _init_intrinsics(target, by_cam[j], sizes[j])
-        except Exception:  # noqa: BLE001 - cv2.error and numerical failures: use the fallback
-            return None
-        w, hh = sizes[j]
-        if not (np.all(np.isfinite(K)) and K[0, 0] > 0 and K[1, 1] > 0 and rms < 5.0
-                and -w < K[0, 2] < 2 * w and -hh < K[1, 2] < 2 * hh):
-            return None
-        return K, d, rms
+@dataclass
+class _Bundle:
+    """The bundle adjustment's observations and its state (:func:`_observations`, :func:`_adjust`)."""
 
-    from inspector.kernels.threads import map_threads
+    pose_list: list[int]  # the target poses adjusted, capture order
+    pose_index: dict[int, int]  # capture -> its row in pose_list
+    use: list[int]  # the views (indices into views) observed
+    steep: list[int]  # the views rejected as seen too obliquely
+    cam_idx: np.ndarray  # per corner: its camera, target pose, corner id, pixel and view
+    pose_idx: np.ndarray
+    pt_idx: np.ndarray
+    uv: np.ndarray
+    group: np.ndarray
+    weight: np.ndarray  # per corner: its board's weight (obliquity)
+    params: np.ndarray  # the packed parameters: first guess, then the solution
+    keep: np.ndarray  # per corner: still in the adjustment
+    per_cam: list[tuple[str, ...]]  # each camera's free intrinsics
+    rejected_groups: list[int] = field(default_factory=list)  # views rejected for their residual
+    thr: float = 0.0  # the residual threshold of the rejection, px
+    iterations: int = 0  # Jacobian evaluations of all rounds
 
-    inits = map_threads(init_one, range(len(names)))
-    for j, init in enumerate(inits):
-        if init is not None:
-            Ks[j], dists[j] = init[0], init[1]
-            continue
-        fallback = _fallback_rig(folders) if fallback is None else fallback
-        cam = fallback.get(names[j])
-        if cam is None:
-            raise RecipeError(f"camera {names[j]}: its intrinsics cannot be estimated from {len(by_cam[j])} boards: "
-                              f"show the target to {names[j]} in more poses, tilted")
-        Ks[j], dists[j] = np.asarray(cam.K, float), np.asarray(cam.dist, float)
-        notes.append(f"{names[j]}: its own first guess of the intrinsics failed; started from the rig.json of the captures")
 
-    # --- target pose in each view
-    obj_all = target.object_points()
-    by_view: dict[tuple[int, int], list[BoardView]] = {}
-    for v in views:
-        by_view.setdefault((v.camera, v.capture), []).append(v)
-    keys = sorted(by_view)
+def _observations(names: list[str], sizes: list[tuple[int, int]], views: list[BoardView],
+                  view_T: dict[tuple[int, int], np.ndarray], cam_T: dict[int, np.ndarray], pose_T: dict[int, np.ndarray],
+                  Ks: np.ndarray, dists: np.ndarray, free_intrinsics: Sequence[str] | None, max_angle_deg: float,
+                  weight_angle_deg: float | None, progress: Callable[[str], None]) -> _Bundle:
+    """The corners the bundle adjustment fits, their weights, the first guess of the parameters
+    and each camera's free intrinsics (stage 4 of :func:`calibrate`); steep boards rejected.
 
-    def pnp(key: tuple[int, int]) -> tuple[np.ndarray, float] | None:
-        j = key[0]
-        return _solve_view(target, obj_all, by_view[key], Ks[j], dists[j])
+    Parameters
+    ----------
+    names, sizes : list
+        The cameras and their ``(width, height)``.
+    views : list of BoardView
+        The boards seen (``angle_deg`` set).
+    view_T, cam_T, pose_T : dict
+        The first guess (:func:`_initial_poses`).
+    Ks, dists : array
+        The cameras' first intrinsics.
+    free_intrinsics : sequence of str or None
+        As :func:`calibrate`'s.
+    max_angle_deg, weight_angle_deg : float
+        As :func:`calibrate`'s.
+    progress : callable
+        Receives the progress lines.
 
-    solved = dict(zip(keys, map_threads(pnp, keys)))
-    rms_views = np.array([s[1] for s in solved.values() if s is not None])
-    limit = max(5.0, 10.0 * float(np.median(rms_views))) if len(rms_views) else 5.0
-    view_T = {k: s[0] for k, s in solved.items() if s is not None and s[1] <= limit}
-    edges = {k: float(sum(len(v.ids) for v in by_view[k])) for k in view_T}
-    cams_of_pose: dict[int, int] = {}
-    for (_, p) in edges:
-        cams_of_pose[p] = cams_of_pose.get(p, 0) + 1
-    if not cams_of_pose:
-        raise RecipeError(f"{root}: the target's pose could not be found in any view")
-    anchor = max(cams_of_pose, key=lambda p: (cams_of_pose[p], sum(w for (c, q), w in edges.items() if q == p)))
-    order = _spanning_tree(len(names), n_caps, edges, anchor)
-    cam_T: dict[int, np.ndarray] = {}  # world -> camera
-    pose_T: dict[int, np.ndarray] = {anchor: np.eye(4)}  # body -> world (world: the anchor's body)
-    for kind, node, via in order:
-        if kind == "cam":
-            cam_T[node] = view_T[(node, via)] @ _inv(pose_T[via])
-        else:
-            pose_T[node] = _inv(cam_T[via]) @ view_T[(via, node)]
-    missing = [names[j] for j in range(len(names)) if j not in cam_T]
-    if missing:
-        raise RecipeError(f"camera {missing[0]} shares no target pose with the other cameras: show the target to "
-                          f"{missing[0]} and its neighbours at once")
-    # each board's obliquity at its view's initial pose
-    normals = target.board_normals()
-    w_b, h_b = target.board_size_mm
-    for v in views:
-        T = view_T.get((v.camera, v.capture))
-        if T is None:
-            continue
-        centre = target.faces[v.board] @ np.array([w_b / 2.0, h_b / 2.0, 0.0, 1.0])
-        Xc = T[:3, :3] @ centre[:3] + T[:3, 3]
-        cos = float(T[:3, :3] @ normals[v.board] @ (-Xc) / np.linalg.norm(Xc))
-        v.angle_deg = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    timings["initialise_s"] = time.perf_counter() - t1
-    progress(f"initialised {len(names)} cameras and {len(pose_T)} target poses ({timings['initialise_s']:.1f} s)")
-
-    # --- the bundle adjustment
-    t2 = time.perf_counter()
+    Returns
+    -------
+    _Bundle
+        Before the first round.
+    """
     pose_list = sorted(pose_T)
     pose_index = {p: k for k, p in enumerate(pose_list)}
     use = [k for k, v in enumerate(views) if v.capture in pose_index and (v.camera, v.capture) in view_T]
@@ -688,7 +376,6 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
         mine = [k for k in use if views[k].camera == j]
         if mine and all(k in steep for k in mine):
             steep.remove(min(mine, key=lambda k: views[k].angle_deg))
-    steep_set = set(steep)
     if steep:
         progress(f"rejected {len(steep)} board{'s' * (len(steep) != 1)} seen at more than {max_angle_deg:g} degrees "
                  "from face-on")
@@ -719,6 +406,45 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
             per_cam.append(FREE_INTRINSICS + ("k2",) * (radius > K2_RADIUS) + ("k3",) * (radius > K3_RADIUS))
     else:
         per_cam = [tuple(free_intrinsics)] * len(names)
+    return _Bundle(pose_list, pose_index, use, steep, cam_idx, pose_idx, pt_idx, uv, group, weight, params, keep,
+                   per_cam)
+
+
+def _adjust(obj_all: np.ndarray, names: list[str], views: list[BoardView], anchor: int, b: _Bundle,
+            reject_factor: float, reject_rounds: int, progress: Callable[[str], None]
+            ) -> tuple[kc.BundleProblem, kc.BundleResult]:
+    """The bundle adjustment's rounds (stage 4 of :func:`calibrate`): adjust, reject the boards
+    whose residual RMS exceeds ``reject_factor`` x the median, adjust again.
+
+    Parameters
+    ----------
+    obj_all : (P, 3) array
+        The target's corners, body frame.
+    names : list of str
+        The cameras.
+    views : list of BoardView
+        The boards seen.
+    anchor : int
+        The target pose that stays fixed (the gauge).
+    b : _Bundle
+        The observations (:func:`_observations`); its ``params``, ``keep``,
+        ``rejected_groups``, ``thr`` and ``iterations`` are updated.
+    reject_factor : float
+        As :func:`calibrate`'s.
+    reject_rounds : int
+        As :func:`calibrate`'s.
+    progress : callable
+        Receives the progress lines.
+
+    Returns
+    -------
+    prob : kc.BundleProblem
+        The last round's problem.
+    res : kc.BundleResult
+        Its solution.
+    """
+    pose_list, pose_index, keep = b.pose_list, b.pose_index, b.keep
+    params = b.params
     rejected_groups: list[int] = []
     thr = 0.0
     iterations = 0
@@ -727,11 +453,11 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
     with _one_blas_thread():
         for rnd in range(reject_rounds + 1):
             t_round = time.perf_counter()
-            used_poses = set(pose_idx[keep].tolist())
+            used_poses = set(b.pose_idx[keep].tolist())
             fixed = [pose_index[anchor]] + [q for q in range(len(pose_list)) if q not in used_poses]
-            free = _free_mask(len(names), len(pose_list), fixed, per_cam)
-            prob = kc.BundleProblem(obj_all, cam_idx[keep], pose_idx[keep], pt_idx[keep], uv[keep], len(names),
-                                    len(pose_list), params, free, weight[keep])
+            free = _free_mask(len(names), len(pose_list), fixed, b.per_cam)
+            prob = kc.BundleProblem(obj_all, b.cam_idx[keep], b.pose_idx[keep], b.pt_idx[keep], b.uv[keep], len(names),
+                                    len(pose_list), params, free, b.weight[keep])
             res = kc.bundle_adjust(prob, loss=LOSS, f_scale=F_SCALE)
             iterations += res.njev
             params = res.params
@@ -739,12 +465,12 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
                      f"{res.njev} iterations, RMS {res.rms_px:.3f} px ({time.perf_counter() - t_round:.1f} s)")
             if rnd == reject_rounds:
                 break
-            bad_ids, thr_r = kc.reject_groups(res.residuals, group[keep], reject_factor)
+            bad_ids, thr_r = kc.reject_groups(res.residuals, b.group[keep], reject_factor)
             # never leave a camera without boards
             bad = [int(g) for g in bad_ids]
             for g in list(bad):
                 c = views[g].camera
-                others = set(group[keep & (cam_idx == c)].tolist()) - set(bad)
+                others = set(b.group[keep & (b.cam_idx == c)].tolist()) - set(bad)
                 if not others:
                     bad.remove(g)
             if not bad:
@@ -752,37 +478,88 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
                 break
             thr = thr_r
             rejected_groups += bad
-            keep &= ~np.isin(group, bad)
+            keep &= ~np.isin(b.group, bad)
             progress(f"rejected {len(bad)} board{'s' * (len(bad) != 1)} whose residual RMS exceeds {thr_r:.3f} px "
                      f"({reject_factor:g} x the median)")
     assert res is not None and prob is not None
-    timings["adjust_s"] = time.perf_counter() - t2
+    b.params, b.rejected_groups, b.thr, b.iterations = params, rejected_groups, thr, iterations
+    return prob, res
 
-    # --- uncertainty
-    t3 = time.perf_counter()
+
+def _uncertainty(prob: kc.BundleProblem, params: np.ndarray, n_cams: int
+                 ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """The uncertainty at the solution (stage 5 of :func:`calibrate`).
+
+    Parameters
+    ----------
+    prob : kc.BundleProblem
+        The last round's problem.
+    params : array
+        Its solution (packed).
+    n_cams : int
+        The number of cameras.
+
+    Returns
+    -------
+    cb : (C, 15) array
+        The cameras' block of the solution.
+    sigma : float
+        The residuals' standard deviation (weighted).
+    cen_std : (C,) array
+        Each camera's centre standard deviation, mm.
+    ang_std : (C,) array
+        Each camera's orientation standard deviation, degrees.
+    intr_std : (C, 9) array
+        The intrinsics' standard deviations (0 for a fixed one).
+    """
     J = prob.jacobian(params[prob.free])
     cov, sigma = kc.normal_covariance(J, prob.residuals(params[prob.free]))  # weighted, as J
     col = np.cumsum(prob.free) - 1
-    ext_idx = [int(col[j * kc.N_CAM + 9 + k]) for j in range(len(names)) for k in range(6)]
-    ext_free = all(prob.free[j * kc.N_CAM + 9 + k] for j in range(len(names)) for k in range(6))
+    ext_idx = [int(col[j * kc.N_CAM + 9 + k]) for j in range(n_cams) for k in range(6)]
+    ext_free = all(prob.free[j * kc.N_CAM + 9 + k] for j in range(n_cams) for k in range(6))
     cb = prob.cam_block(params)
     if ext_free:
         cen_std, ang_std, _ = kc.camera_uncertainty(cb[:, 9:12], cb[:, 12:15], cov[np.ix_(ext_idx, ext_idx)])
     else:  # pragma: no cover - every camera's extrinsics are free
-        cen_std = ang_std = np.full(len(names), np.nan)
-    intr_std = np.zeros((len(names), 9))
-    for j in range(len(names)):
+        cen_std = ang_std = np.full(n_cams, np.nan)
+    intr_std = np.zeros((n_cams, 9))
+    for j in range(n_cams):
         for k in range(9):
             i = j * kc.N_CAM + k
             if prob.free[i]:
                 intr_std[j, k] = float(np.sqrt(max(cov[col[i], col[i]], 0.0)))
-    timings["covariance_s"] = time.perf_counter() - t3
-    progress(f"uncertainty of every camera's position and orientation ({timings['covariance_s']:.1f} s)")
+    return cb, sigma, cen_std, ang_std, intr_std
 
-    # --- output frame: origin nearest the optical axes, axes of the body at the first pose
+
+def _output_frame(prob: kc.BundleProblem, b: _Bundle, cb: np.ndarray, n_cams: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, np.ndarray]]:
+    """The solution in the output frame (stage 6 of :func:`calibrate`): origin nearest the
+    optical axes, axes of the body at the first pose.
+
+    Parameters
+    ----------
+    prob : kc.BundleProblem
+        The last round's problem.
+    b : _Bundle
+        The adjustment (its ``params``, ``pose_list``, ``pose_index``).
+    cb : (C, 15) array
+        The cameras' block of the solution.
+    n_cams : int
+        The number of cameras.
+
+    Returns
+    -------
+    K_out : (C, 3, 3) array
+        Camera matrices.
+    R_out, t_out : arrays
+        World -> camera of each camera.
+    poses_out : dict
+        Body -> world of each target pose, by capture.
+    """
+    pose_list, pose_index = b.pose_list, b.pose_index
     Rc = kc.rodrigues(cb[:, 9:12])
     tc = cb[:, 12:15]
-    pb = prob.pose_block(params)
+    pb = prob.pose_block(b.params)
     first = min(p for p in pose_list if pose_index[p] in set(prob.pose.tolist()))
     Rp0 = kc.rodrigues(pb[pose_index[first], :3])
     centres = -np.einsum("nji,nj->ni", Rc, tc)
@@ -796,64 +573,66 @@ def calibrate(target: Target, folders: Sequence[Path], *, free_intrinsics: Seque
         T[:3, :3] = Rp0.T @ kc.rodrigues(pb[q, :3])
         T[:3, 3] = Rp0.T @ (pb[q, 3:] - origin)
         poses_out[p] = T
-    K_out = np.zeros((len(names), 3, 3))
+    K_out = np.zeros((n_cams, 3, 3))
     K_out[:, 0, 0], K_out[:, 1, 1], K_out[:, 0, 2], K_out[:, 1, 2], K_out[:, 2, 2] = cb[:, 0], cb[:, 1], cb[:, 2], cb[:, 3], 1.0
+    return K_out, R_out, t_out, poses_out
 
-    # --- residuals of every view at the solution (rejected ones too)
-    full = kc.BundleProblem(obj_all, cam_idx, pose_idx, pt_idx, uv, len(names), len(pose_list), params, prob.free)
-    r_all = full.project(params) - uv
+
+def _view_residuals(obj_all: np.ndarray, names: list[str], folders: Sequence[Path], views: list[BoardView],
+                    prob: kc.BundleProblem, b: _Bundle) -> tuple[list[np.ndarray], np.ndarray, list[dict[str, Any]]]:
+    """The residuals of every view at the solution, rejected ones too.
+
+    Parameters
+    ----------
+    obj_all : (P, 3) array
+        The target's corners, body frame.
+    names : list of str
+        The cameras.
+    folders : sequence of Path
+        The capture folders.
+    views : list of BoardView
+        The boards seen.
+    prob : kc.BundleProblem
+        The last round's problem (its free parameters).
+    b : _Bundle
+        The adjustment.
+
+    Returns
+    -------
+    residuals : list of (k, 2) arrays
+        Each view's residuals, px (empty for a view not observed).
+    kept : (V,) bool array
+        The views the solution rests on.
+    rejected : list of dict
+        The rejected boards, for the report.
+    """
+    steep_set = set(b.steep)
+    full = kc.BundleProblem(obj_all, b.cam_idx, b.pose_idx, b.pt_idx, b.uv, len(names), len(b.pose_list), b.params,
+                            prob.free)
+    r_all = full.project(b.params) - b.uv
     residuals: list[np.ndarray] = [np.zeros((0, 2)) for _ in views]
     kept_views = np.zeros(len(views), bool)
-    for k in use:
-        residuals[k] = r_all[group == k]
+    for k in b.use:
+        residuals[k] = r_all[b.group == k]
         kept_views[k] = True
-    for g in list(steep_set) + rejected_groups:
+    for g in list(steep_set) + b.rejected_groups:
         kept_views[g] = False
     rejected = []
-    for g in sorted(steep_set) + rejected_groups:
+    for g in sorted(steep_set) + b.rejected_groups:
         v = views[g]
         r = residuals[g]
         rejected.append({"camera": names[v.camera], "capture": folders[v.capture].name, "board": int(v.board),
                          "corners": int(len(v.ids)), "rms_px": round(float(np.sqrt(np.mean(np.sum(r * r, axis=1)))), 4),
                          "angle_deg": round(v.angle_deg, 1),
                          "reason": "steep" if g in steep_set else "residual"})
-    timings["total_s"] = time.perf_counter() - t0
-    return Calibration(
-        names=names, sizes=sizes, captures=[f.name for f in folders], K=K_out, dist=cb[:, 4:9].copy(), R=R_out, t=t_out,
-        poses=poses_out, views=views, kept=kept_views, residuals=residuals, rejected=rejected, reject_threshold_px=thr,
-        rms_px=res.rms_px, iterations=iterations, sigma_px=sigma, centre_std_mm=cen_std, angle_std_deg=ang_std,
-        intrinsic_std=intr_std, notes=notes, timings=timings, target=target,
-        max_angle_deg=max_angle_deg)
+    return residuals, kept_views, rejected
 
 
 # --------------------------------------------------------------------------- the command
 
 
-#: The stages of :attr:`Calibration.timings` in the order the command runs them, and their words.
-STAGES = (("detect_s", "detection"), ("initialise_s", "initialisation"), ("adjust_s", "adjustment"),
-          ("covariance_s", "uncertainty"), ("write_s", "writing"))
-
-
-def timing_line(timings: dict[str, float]) -> str:
-    """``"done in 18.4 s (31.0 s of CPU): detection 6.1 s, initialisation 0.9 s, ..., machine
-    load 1.2"``: the command's own benchmark line (seconds of wall time per stage; the CPU
-    seconds of all the command's threads and the 1-minute load average beside them, since a
-    machine loaded by other work stretches the wall time, not the CPU time)."""
-    parts = [f"{word} {timings[key]:.1f} s" for key, word in STAGES if key in timings]
-    load = f", machine load {os.getloadavg()[0]:.1f}" if hasattr(os, "getloadavg") else ""
-    total = timings.get("command_s", timings.get("total_s", 0.0))
-    cpu = f" ({timings['cpu_s']:.1f} s of CPU)" if "cpu_s" in timings else ""
-    return f"done in {total:.1f} s{cpu}: {', '.join(parts)}{load}"
-
-
 def run_calibrate(args: argparse.Namespace) -> int:
     """``inspector calibrate TARGET.toml --captures DIR --out RIG.json [--force] [--report DIR] [--json]``."""
-    import json
-
-    from inspector.calibration import report as rep
-    from inspector.calibration.command import check_new_file, write_rig
-    from inspector.model import Camera, Rig
-
     t0, cpu0 = time.perf_counter(), time.process_time()
     target = load_target(args.target)
     if not getattr(args, "out", None):
@@ -896,7 +675,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     cal.timings["command_s"] = time.perf_counter() - t0
     cal.timings["cpu_s"] = time.process_time() - cpu0
     progress(f"wrote {out} and {len(pictures)} pictures in {report_dir} ({cal.timings['write_s']:.1f} s)")
-    progress(timing_line(cal.timings))
+    progress(rep.timing_line(cal.timings))
     summary["timings_s"] = {k: round(v, 3) for k, v in cal.timings.items()}
     summary["load_1min"] = round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None
     (report_dir / "report.json").write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")

@@ -35,7 +35,10 @@ from typing import Any
 
 import numpy as np
 
+from inspector.characteristics.measure import Characteristic
 from inspector.errors import InspectorError, RecipeError
+from inspector.kernels.features import find_features
+from inspector.reference import Reference
 
 __all__ = ["SETTINGS_KEY", "features_for", "features_of_reference", "measured_in", "parse_characteristics", "rows_of"]
 
@@ -72,8 +75,6 @@ def features_for(vertices: np.ndarray, faces: np.ndarray) -> list[Any]:
     list of Feature
         Shared: do not modify.
     """
-    from inspector.kernels.features import find_features
-
     key = _digest(vertices, faces)
     with _lock:
         if key in _cache:
@@ -90,8 +91,6 @@ def features_for(vertices: np.ndarray, faces: np.ndarray) -> list[Any]:
 def features_of_reference(spec: str) -> list[Any]:
     """The features of the reference ``spec`` (``builtin:NAME`` or a mesh file); RecipeError
     naming it when it cannot be read."""
-    from inspector.reference import Reference
-
     try:
         ref = Reference.load(spec)
     except InspectorError as e:
@@ -122,8 +121,6 @@ def parse_characteristics(raw: Any, where: str, reference: str | None) -> tuple[
     RecipeError
         One line naming the entry (``characteristics[2]`` and its id) and the problem.
     """
-    from inspector.characteristics.measure import Characteristic
-
     if raw is None:
         return ()
     if not isinstance(raw, list):

@@ -22,6 +22,8 @@ import numpy as np
 
 from inspector import hookimpl
 from inspector.errors import RecipeError, ReferenceMeshError
+from inspector.reference import Reference
+from inspector.registry import CommandSpec
 
 if TYPE_CHECKING:
     from inspector.kernels.features import Feature
@@ -63,7 +65,6 @@ def describe(f: Feature) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from inspector.kernels.features import find_features
-    from inspector.reference import Reference
 
     picture = None
     if args.picture:
@@ -175,7 +176,5 @@ def _areas(tri: np.ndarray) -> np.ndarray:
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
     """``inspector features``: a built-in plugin (entry point ``features``), like ``feasibility``."""
-    from inspector.registry import CommandSpec
-
     registry.add(CommandSpec("features", add_parser, run,
                              "the reference's geometric features (planes, cylinders, cones, spheres) and their ids"))

@@ -35,7 +35,10 @@ from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import escape, quoteattr
 
+from inspector import __version__
+from inspector.characteristics.definitions import features_for
 from inspector.characteristics.measure import Characteristic, CharacteristicResult, unit_of
+from inspector.errors import RecipeError
 
 __all__ = ["DFQ_FIELD", "DFQ_CHARACTERISTIC", "PartRecord", "RunRecords", "write_dfq", "write_qif"]
 
@@ -219,8 +222,6 @@ def write_qif(path: str | os.PathLike[str], characteristics: Sequence[Characteri
     -------
     Path
     """
-    from inspector import __version__
-
     nom = _nominals(characteristics, parts)
     by_fid = {f.id: f for f in features}
     for c in characteristics:
@@ -259,6 +260,37 @@ def write_qif(path: str | os.PathLike[str], characteristics: Sequence[Characteri
         for fid in c.features:
             if fid not in used:
                 used.append(fid)
+    features_xml, item_of = _qif_features(used, by_fid, ids)
+    b(features_xml)
+    characteristics_xml, citem_of = _qif_characteristics(characteristics, nom, item_of, std, dev, ids)
+    b(characteristics_xml)
+    b(_qif_results(characteristics, parts, citem_of, ids))
+    w(f'<QIFDocument xmlns="{_QIF_NS}" versionQIF="3.0.0" idMax="{ids.n}">')
+    out += body
+    w("</QIFDocument>")
+    return _write(path, ("\n".join(out) + "\n").encode("utf-8"))
+
+
+def _qif_features(used: list[str], by_fid: dict[str, Any], ids: _Ids) -> tuple[str, dict[str, int]]:
+    """The ``Features`` element of :func:`write_qif`: the definition, nominal and item of each
+    feature ``used``, in that order.
+
+    Parameters
+    ----------
+    used : list of str
+        The ids of the features the characteristics name, first named first.
+    by_fid : dict
+        The reference's features by id.
+    ids : _Ids
+        The document's id counter (ids are drawn in document order).
+
+    Returns
+    -------
+    xml : str
+        The element.
+    item_of : dict
+        Each feature's ``FeatureItem`` id.
+    """
     fdef, fnom, fitem = [], [], []
     item_of: dict[str, int] = {}
     for fid in used:
@@ -290,10 +322,35 @@ def write_qif(path: str | os.PathLike[str], characteristics: Sequence[Characteri
                      f"<FeatureName>{escape(fid)}</FeatureName><DeterminationMode><Checked><CheckDetails><Measured/>"
                      f"</CheckDetails></Checked></DeterminationMode></{stem}FeatureItem>")
     k = len(used)
-    b(f'<Features><FeatureDefinitions n="{k}">{"".join(fdef)}</FeatureDefinitions>'
-      f'<FeatureNominals n="{k}">{"".join(fnom)}</FeatureNominals>'
-      f'<FeatureItems n="{k}">{"".join(fitem)}</FeatureItems></Features>')
-    # characteristics
+    return (f'<Features><FeatureDefinitions n="{k}">{"".join(fdef)}</FeatureDefinitions>'
+            f'<FeatureNominals n="{k}">{"".join(fnom)}</FeatureNominals>'
+            f'<FeatureItems n="{k}">{"".join(fitem)}</FeatureItems></Features>'), item_of
+
+
+def _qif_characteristics(characteristics: Sequence[Characteristic], nom: dict[str, float], item_of: dict[str, int],
+                         std: int, dev: int, ids: _Ids) -> tuple[str, dict[str, int]]:
+    """The ``Characteristics`` element of :func:`write_qif`: each characteristic's definition
+    (its tolerance), nominal and item.
+
+    Parameters
+    ----------
+    characteristics : sequence of Characteristic
+    nom : dict
+        Each characteristic's nominal value (:func:`_nominals`).
+    item_of : dict
+        Each feature's ``FeatureItem`` id (:func:`_qif_features`).
+    std, dev : int
+        The ids of the standard (ISO 1101) and of the measurement device.
+    ids : _Ids
+        The document's id counter.
+
+    Returns
+    -------
+    xml : str
+        The element.
+    citem_of : dict
+        Each characteristic's ``CharacteristicItem`` id.
+    """
     cdef, cnom, citem = [], [], []
     citem_of: dict[str, int] = {}
     for c in characteristics:
@@ -322,10 +379,30 @@ def write_qif(path: str | os.PathLike[str], characteristics: Sequence[Characteri
                      f'<MeasurementDeviceIds n="1"><Id>{dev}</Id></MeasurementDeviceIds>'
                      f"<CharacteristicNominalId>{n_}</CharacteristicNominalId></{stem}CharacteristicItem>")
     m = len(characteristics)
-    b(f'<Characteristics><FormalStandardId>{std}</FormalStandardId><CharacteristicDefinitions n="{m}">{"".join(cdef)}</CharacteristicDefinitions>'
-      f'<CharacteristicNominals n="{m}">{"".join(cnom)}</CharacteristicNominals>'
-      f'<CharacteristicItems n="{m}">{"".join(citem)}</CharacteristicItems></Characteristics>')
-    # results: one MeasurementResults per part
+    return (f'<Characteristics><FormalStandardId>{std}</FormalStandardId><CharacteristicDefinitions n="{m}">{"".join(cdef)}</CharacteristicDefinitions>'
+            f'<CharacteristicNominals n="{m}">{"".join(cnom)}</CharacteristicNominals>'
+            f'<CharacteristicItems n="{m}">{"".join(citem)}</CharacteristicItems></Characteristics>'), citem_of
+
+
+def _qif_results(characteristics: Sequence[Characteristic], parts: Sequence[PartRecord], citem_of: dict[str, int],
+                 ids: _Ids) -> str:
+    """The ``Results`` element of :func:`write_qif`: one ``MeasurementResults`` and one
+    ``ActualComponent`` per part.
+
+    Parameters
+    ----------
+    characteristics : sequence of Characteristic
+    parts : sequence of PartRecord
+    citem_of : dict
+        Each characteristic's ``CharacteristicItem`` id (:func:`_qif_characteristics`).
+    ids : _Ids
+        The document's id counter.
+
+    Returns
+    -------
+    str
+        The element.
+    """
     sets, actuals = [], []
     for p in parts:
         res = p.by_id()
@@ -360,13 +437,9 @@ def write_qif(path: str | os.PathLike[str], characteristics: Sequence[Characteri
         actuals.append(f'<ActualComponent id="{comp}"><SerialNumber>{escape(p.part_id)}</SerialNumber>'
                        f"<Status><InspectionStatusEnum>{status_of(verdicts)}</InspectionStatusEnum></Status>"
                        "</ActualComponent>")
-    b(f'<Results><MeasurementResultsSet n="{len(sets)}">{"".join(sets)}</MeasurementResultsSet>'
-      f'<ActualComponentSets n="1"><ActualComponentSet n="{len(actuals)}">{"".join(actuals)}</ActualComponentSet>'
-      "</ActualComponentSets></Results>")
-    w(f'<QIFDocument xmlns="{_QIF_NS}" versionQIF="3.0.0" idMax="{ids.n}">')
-    out += body
-    w("</QIFDocument>")
-    return _write(path, ("\n".join(out) + "\n").encode("utf-8"))
+    return (f'<Results><MeasurementResultsSet n="{len(sets)}">{"".join(sets)}</MeasurementResultsSet>'
+            f'<ActualComponentSets n="1"><ActualComponentSet n="{len(actuals)}">{"".join(actuals)}</ActualComponentSet>'
+            "</ActualComponentSets></Results>")
 
 
 # --------------------------------------------------------------------------- a run's files
@@ -384,8 +457,6 @@ def _when(metadata: Mapping[str, Any]) -> datetime:
 
 
 def _output_file(path: str, option: str) -> Path:
-    from inspector.errors import RecipeError
-
     p = Path(path).expanduser()
     if p.is_dir():
         raise RecipeError(f"{option} {path}: is a folder, not a file")
@@ -417,9 +488,6 @@ class RunRecords:
         """Check the options against ``recipe`` (a :class:`~inspector.recipe.Recipe`) before the
         run; RecipeError (one line) when it defines no characteristics or a file's folder is
         missing."""
-        from inspector.characteristics.definitions import features_for
-        from inspector.errors import RecipeError
-
         option = "--dfq" if dfq is not None else "--qif"
         chars = tuple(getattr(recipe, "characteristics", ()))
         if not chars:

@@ -361,7 +361,7 @@ def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray, start: Mapping[str, Any]
         if fit.params and float(fit.params["normal"] @ np.asarray(nm["normal"])) < 0:  # outward, as the CAD's
             p = dict(fit.params)
             p["normal"] = -p["normal"]
-            geometry = fit._geometry
+            geometry = fit.perturbed  # its geometry at the local parameters given
 
             def flipped(d: np.ndarray) -> dict[str, Any]:
                 g = geometry(d)

@@ -292,25 +292,24 @@ def _refine(origin, d, tbest, vbest, sbest, hull, sd_fn, step_mm, levels, offset
     return tbest, vbest, sbest
 
 
+@dataclass(frozen=True)
+class _RaySearch:
+    """The search settings of :func:`select_on_rays` (see its parameters)."""
+
+    step_mm: float
+    refine_levels: int
+    refine_samples: int
+    tolerance_px: float
+    accept_px: float
+    violation_weight: float
+    max_points: int
+
+
 def select_on_rays(
-    origin: np.ndarray,
-    dirs: np.ndarray,
-    views: Sequence[View],
-    skip: int,
-    sd_fn: SignedDistance,
-    bounds: np.ndarray,
-    *,
-    step_mm: float = 0.25,
-    refine_levels: int = 2,
-    refine_samples: int = 11,
-    tolerance_px: float = 0.05,
-    accept_px: float = 1.0,
-    violation_weight: float = 3.0,
-    max_points: int = 1_000_000,
-    stack: object | None = None,
-    t_range: tuple[np.ndarray, np.ndarray] | None = None,
-    mesh: object | None = None,
-    pose: np.ndarray | None = None,
+    origin: np.ndarray, dirs: np.ndarray, views: Sequence[View], skip: int, sd_fn: SignedDistance, bounds: np.ndarray,
+    *, step_mm: float = 0.25, refine_levels: int = 2, refine_samples: int = 11, tolerance_px: float = 0.05,
+    accept_px: float = 1.0, violation_weight: float = 3.0, max_points: int = 1_000_000, stack: object | None = None,
+    t_range: tuple[np.ndarray, np.ndarray] | None = None, mesh: object | None = None, pose: np.ndarray | None = None,
     sd_scale: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """BCPS on exact rays (the ``ray`` method).
@@ -381,10 +380,7 @@ def select_on_rays(
     valid : (M,) bool
     """
     M = len(dirs)
-    points = np.full((M, 3), np.nan)
-    deviation = np.full(M, np.nan)
-    segment = np.zeros(M)
-    valid = np.zeros(M, bool)
+    out = (np.full((M, 3), np.nan), np.full(M, np.nan), np.zeros(M), np.zeros(M, bool))
     t0, t1 = ray_box(origin, dirs, bounds)
     if t_range is not None:
         t0 = np.maximum(t0, t_range[0])
@@ -392,7 +388,23 @@ def select_on_rays(
     hit = np.flatnonzero(t1 > t0)
     others = [v for i, v in enumerate(views) if i != skip]
     if hit.size == 0 or not others:
-        return points, deviation, segment, valid
+        return out
+    hull = _hull_of(views, skip, stack)
+    lip = _lipschitz_px_per_mm(others, bounds)
+    weight = violation_weight / lip  # mm per pixel of violation
+    s = _RaySearch(step_mm, refine_levels, refine_samples, tolerance_px, accept_px, violation_weight, max_points)
+    if stack is not None and mesh is not None and pose is not None:
+        _select_compiled(origin, dirs, views, skip, sd_fn, bounds, hit, t0, t1, lip, weight, s, stack, mesh, pose,
+                         sd_scale, out)
+    else:
+        _select_sampled(origin, dirs, hit, t0, t1, hull, sd_fn, lip, weight, s, out)
+    return out
+
+
+def _hull_of(views: Sequence[View], skip: int, stack: object | None) -> Callable[[np.ndarray, float], np.ndarray]:
+    """``(X (N, 3) world mm, limit px) -> (N,)`` hull violation, px, of every camera but
+    ``skip``: the compiled kernel (:func:`inspector.kernels.hull_jit.violation`) on
+    ``stack``, else :func:`hull_violation`."""
     if stack is not None:
         from inspector.kernels.hull_jit import violation
 
@@ -403,33 +415,81 @@ def select_on_rays(
         def hull(X, limit):
             return hull_violation(X, views, limit, skip)
 
-    lip = _lipschitz_px_per_mm(others, bounds)
-    weight = violation_weight / lip  # mm per pixel of violation
-    if stack is not None and mesh is not None and pose is not None:
-        from inspector.kernels import bcps_jit
+    return hull
 
-        tb, vb, sb, seg, oob = bcps_jit.select_rays(
-            origin, dirs[hit], t0[hit], t1[hit], stack, skip, mesh, pose, step_mm=step_mm,
-            refine_levels=refine_levels, refine_samples=refine_samples, tolerance_px=tolerance_px,
-            accept_px=accept_px, weight=weight, lip=lip, bounds=bounds, sd_scale=sd_scale,
+
+def _select_compiled(
+    origin: np.ndarray, dirs: np.ndarray, views: Sequence[View], skip: int, sd_fn: SignedDistance, bounds: np.ndarray,
+    hit: np.ndarray, t0: np.ndarray, t1: np.ndarray, lip: float, weight: float, s: _RaySearch, stack: object,
+    mesh: object, pose: np.ndarray, sd_scale: float, out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> None:
+    """:func:`select_on_rays` by the compiled search (:func:`inspector.kernels.bcps_jit.select_rays`)
+    on the rays ``hit``; the rays it flags (a distance outside the index's band) take the
+    numpy path with ``sd_fn``.
+
+    Parameters
+    ----------
+    hit : (H,) int
+        Rays with a non-empty range ``t0 < t1`` (mm from ``origin``, (M,) each).
+    lip : float
+        Bound of the hull violation's rate along a ray, px / mm.
+    weight : float
+        Cost of one pixel of hull violation, mm.
+    out : (points (M, 3), deviation (M,), segment_mm (M,), valid (M,))
+        :func:`select_on_rays`'s results, filled in place for the rays ``hit``.
+    """
+    from inspector.kernels import bcps_jit
+
+    points, deviation, segment, valid = out
+    tb, vb, sb, seg, oob = bcps_jit.select_rays(
+        origin, dirs[hit], t0[hit], t1[hit], stack, skip, mesh, pose, step_mm=s.step_mm,
+        refine_levels=s.refine_levels, refine_samples=s.refine_samples, tolerance_px=s.tolerance_px,
+        accept_px=s.accept_px, weight=weight, lip=lip, bounds=bounds, sd_scale=sd_scale,
+    )
+    ok = ~oob & (vb <= s.accept_px) & np.isfinite(sb)
+    sel = hit[ok]
+    points[sel] = origin + tb[ok, None] * dirs[sel]
+    deviation[sel] = sb[ok]
+    valid[sel] = True
+    segment[hit[~oob]] = seg[~oob]
+    if oob.any():
+        rest = hit[oob]
+        p2, d2, s2, v2 = select_on_rays(
+            origin, dirs[rest], views, skip, sd_fn, bounds, step_mm=s.step_mm, refine_levels=s.refine_levels,
+            refine_samples=s.refine_samples, tolerance_px=s.tolerance_px, accept_px=s.accept_px,
+            violation_weight=s.violation_weight, max_points=s.max_points, stack=stack, t_range=(t0[rest], t1[rest]),
         )
-        ok = ~oob & (vb <= accept_px) & np.isfinite(sb)
-        sel = hit[ok]
-        points[sel] = origin + tb[ok, None] * dirs[sel]
-        deviation[sel] = sb[ok]
-        valid[sel] = True
-        segment[hit[~oob]] = seg[~oob]
-        if oob.any():
-            rest = hit[oob]
-            p2, d2, s2, v2 = select_on_rays(
-                origin, dirs[rest], views, skip, sd_fn, bounds, step_mm=step_mm, refine_levels=refine_levels,
-                refine_samples=refine_samples, tolerance_px=tolerance_px, accept_px=accept_px,
-                violation_weight=violation_weight, max_points=max_points, stack=stack, t_range=(t0[rest], t1[rest]),
-            )
-            points[rest], deviation[rest], segment[rest], valid[rest] = p2, d2, s2, v2
-        return points, deviation, segment, valid
+        points[rest], deviation[rest], segment[rest], valid[rest] = p2, d2, s2, v2
+
+
+def _select_sampled(
+    origin: np.ndarray, dirs: np.ndarray, hit: np.ndarray, t0: np.ndarray, t1: np.ndarray,
+    hull: Callable[[np.ndarray, float], np.ndarray], sd_fn: SignedDistance, lip: float, weight: float, s: _RaySearch,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> None:
+    """:func:`select_on_rays` by sampling (numpy) on the rays ``hit``, by chunks of at most
+    ``s.max_points`` samples: a coarse grid every ``s.step_mm``, then two seeds (the best
+    candidate, and the deepest accepted sample when it lies farther than a step from it)
+    refined by :func:`_refine`.
+
+    Parameters
+    ----------
+    hit : (H,) int
+        Rays with a non-empty range ``t0 < t1`` (mm from ``origin``, (M,) each).
+    hull : callable
+        ``(X (N, 3) mm, limit px) -> (N,)`` hull violation, px (:func:`_hull_of`).
+    lip : float
+        Bound of the hull violation's rate along a ray, px / mm.
+    weight : float
+        Cost of one pixel of hull violation, mm.
+    out : (points (M, 3), deviation (M,), segment_mm (M,), valid (M,))
+        :func:`select_on_rays`'s results, filled in place for the rays ``hit``.
+    """
+    points, deviation, segment, valid = out
+    step_mm, refine_levels, refine_samples = s.step_mm, s.refine_levels, s.refine_samples
+    tolerance_px, accept_px = s.tolerance_px, s.accept_px
     K = int(np.ceil((t1[hit] - t0[hit]).max() / step_mm)) + 1
-    chunk = max(1, max_points // max(K, refine_samples))
+    chunk = max(1, s.max_points // max(K, refine_samples))
     half = (refine_samples - 1) // 2
     offsets = np.linspace(-1.0, 1.0, refine_samples)
     for start in range(0, hit.size, chunk):
@@ -465,7 +525,6 @@ def select_on_rays(
         points[sel] = origin + tbest[ok, None] * d[ok]
         deviation[sel] = sbest[ok]
         valid[sel] = True
-    return points, deviation, segment, valid
 
 
 def select_on_surface(

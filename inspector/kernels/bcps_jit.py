@@ -24,7 +24,7 @@ import math
 import numba
 import numpy as np
 
-from inspector.kernels.hull_jit import map_value  # inlined into the kernels below
+from inspector.kernels.hull_jit import CameraStack, map_value  # map_value: inlined into the kernels below
 from inspector.kernels.meshdist import signed_at
 
 numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]  # set at run time
@@ -234,7 +234,7 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
         s_out[r] = bs
 
 
-def camera_speed(stack, bounds: np.ndarray) -> np.ndarray:
+def camera_speed(stack: CameraStack, bounds: np.ndarray) -> np.ndarray:
     """Per camera, a bound of how fast a point's projection moves, px per mm, for points
     in the sphere around ``bounds`` (2, 3) mm; inf for cameras with lens distortion
     (never skipped).
@@ -243,7 +243,7 @@ def camera_speed(stack, bounds: np.ndarray) -> np.ndarray:
     ``[I | -x] / z``, whose largest singular value is ``sqrt(1 + |x|^2) / z``.
     """
     key = np.asarray(bounds, np.float64).tobytes()
-    cached = getattr(stack, "_speed", None)
+    cached = stack.speed_cache
     if cached is not None and cached[0] == key:
         return cached[1]
     centre = 0.5 * (bounds[0] + bounds[1])
@@ -259,7 +259,7 @@ def camera_speed(stack, bounds: np.ndarray) -> np.ndarray:
         xmax = (float(np.hypot(pc[0], pc[1])) + radius) / zmin
         k2 = float(np.linalg.norm(stack.K[c][:2, :2], 2))
         out[c] = k2 * np.sqrt(1.0 + xmax * xmax) / zmin
-    stack._speed = (key, out)  # the same bounds for every camera of a pass
+    stack.speed_cache = (key, out)  # the same bounds for every camera of a pass
     return out
 
 

@@ -107,12 +107,14 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from inspector.kernels import camera as camk
+from inspector.kernels import carving_jit
+from inspector.kernels.threads import map_threads
 from inspector.model import Camera, Reconstruction
 
 __all__ = [
@@ -951,12 +953,7 @@ def _refine_points(
         grad = grad_all[:, todo]
         gn2 = np.einsum("ij,ij->j", grad, grad)
         t, tp, fp, hp = tau[todo], tau_p[todo], f_p[todo], have_p[todo]
-        slope = -gn2
-        use = hp & (t != tp)
-        if use.any():
-            sec = (f[use] - fp[use]) / (t[use] - tp[use])
-            g2 = gn2[use]
-            slope[use] = np.where((sec >= -4.0 * g2) & (sec <= -0.25 * g2), sec, slope[use])
+        slope = _secant_slope(gn2, f, t, tp, fp, hp)
         step = gn2 > 1e-12
         ts = todo[step]
         f_p[ts] = f[step]
@@ -968,6 +965,77 @@ def _refine_points(
         todo, X = todo[ok], X[:, ok]
         if todo.size == 0:
             break
+    return _kept_points(views, C, Pc, size, h, Xout, fout, argout, arg_prev, anchor, grad_all)
+
+
+def _secant_slope(
+    gn2: np.ndarray, f: np.ndarray, t: np.ndarray, tp: np.ndarray, fp: np.ndarray, hp: np.ndarray
+) -> np.ndarray:
+    """Slope of ``f`` along each point's chord for its next step (:func:`_refine_points`).
+
+    Parameters
+    ----------
+    gn2 : (N,) float
+        Squared norm of each chord's gradient, mm**2 / mm**2 (``-gn2``: the chord slope).
+    f : (N,) float
+        ``f`` at the current points, mm.
+    t, tp : (N,) float
+        Current and previous positions along the chord (``X = S - tau * grad``).
+    fp : (N,) float
+        ``f`` at the previous position, mm.
+    hp : (N,) bool
+        A previous position is known.
+
+    Returns
+    -------
+    (N,) float
+        The secant slope where two positions are known and it lies within a factor 4 of the
+        chord slope, else the chord slope ``-gn2``.
+    """
+    slope = -gn2
+    use = hp & (t != tp)
+    if use.any():
+        sec = (f[use] - fp[use]) / (t[use] - tp[use])
+        g2 = gn2[use]
+        slope[use] = np.where((sec >= -4.0 * g2) & (sec <= -0.25 * g2), sec, slope[use])
+    return slope
+
+
+def _kept_points(
+    views: Sequence[_View], C: np.ndarray, Pc: np.ndarray | None, size: float, h: float, Xout: np.ndarray,
+    fout: np.ndarray, argout: np.ndarray, arg_prev: np.ndarray, anchor: np.ndarray, grad_all: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Newton points of :func:`_refine_points` that are kept, with their normals.
+
+    Parameters
+    ----------
+    C : (3, N) float
+        Cell centres, mm.
+    Pc : (3, N) float, optional
+        Centres of the cells' parents, mm.
+    size : float
+        Cell edge, mm.
+    h : float
+        Finite-difference step, mm.
+    Xout : (3, N) float
+        Final points, mm.
+    fout : (N,) float
+        ``f`` at them, mm.
+    argout : (N,) intp
+        Camera attaining the minimum there.
+    arg_prev : (N,) intp
+        Camera of each point's last chord (-1: none).
+    anchor : (3, N) float
+        Where each last chord was taken, mm.
+    grad_all : (3, N) float
+        Each last chord's gradient (mm / mm).
+
+    Returns
+    -------
+    points (M, 3), outward unit normals (M, 3), residual ``f`` (M,) mm: the points inside
+    their own cell with ``|f| <= 0.02 * size``, the normal a gradient of their camera taken
+    within ``h`` of them (the chord, or at the parent's centre), else at the point.
+    """
     ok = np.flatnonzero((np.max(np.abs(Xout - C), axis=0) <= 0.5 * size * (1.0 + 1e-9)) & (np.abs(fout) <= 0.02 * size))
     X, f, a = Xout[:, ok], fout[ok], argout[ok]
     # the normal: a gradient of camera a taken within h of the point (the chord, or at the
@@ -1147,6 +1215,400 @@ def _mesh(
     return verts, faces, info
 
 
+def _resolve_backend(backend: str) -> str:
+    """The carving backend: ``backend`` checked, ``"auto"`` resolved to ``"numba"`` when numba
+    can be imported, else ``"numpy"``.
+
+    Raises
+    ------
+    ValueError
+        ``backend`` is not one of ``"auto"``, ``"numba"``, ``"numpy"``.
+    """
+    if backend not in ("auto", "numba", "numpy"):
+        raise ValueError(f"backend must be 'auto', 'numba' or 'numpy', got {backend!r}")
+    if backend == "auto":
+        try:
+            import numba  # noqa: F401
+
+            backend = "numba"
+        except ImportError:  # pragma: no cover - numba is a dependency
+            backend = "numpy"
+    return backend
+
+
+def _checked_inputs(
+    cameras: Sequence[Camera], masks: Sequence[np.ndarray], voxel_mm: float, open_border: Sequence[bool] | None
+) -> tuple[float, list[bool], list[np.ndarray]]:
+    """:func:`carve`'s arguments checked: ``voxel_mm`` (mm, float), the open-border flags (one
+    per camera) and the masks as C-contiguous (H, W) bool arrays.
+
+    Raises
+    ------
+    ValueError
+        ``voxel_mm <= 0`` or not finite, no cameras, or counts that do not match.
+    """
+    voxel_mm = float(voxel_mm)
+    if not (voxel_mm > 0 and np.isfinite(voxel_mm)):
+        raise ValueError(f"voxel_mm must be > 0, got {voxel_mm}")
+    if len(cameras) != len(masks):
+        raise ValueError(f"{len(cameras)} cameras but {len(masks)} masks")
+    if len(cameras) == 0:
+        raise ValueError("no cameras")
+    ob = [False] * len(cameras) if open_border is None else [bool(b) for b in open_border]
+    if len(ob) != len(cameras):
+        raise ValueError(f"{len(cameras)} cameras but {len(ob)} open_border flags")
+    return voxel_mm, ob, [np.ascontiguousarray(m, dtype=bool) for m in masks]
+
+
+def _carve_bounds(
+    cameras: Sequence[Camera], masks: Sequence[np.ndarray], ob: Sequence[bool], bounds: np.ndarray | None,
+    st: dict[str, Any],
+) -> tuple[list[tuple[int, int, int, int]], np.ndarray | None]:
+    """The masks' object boxes (:func:`_object_box`) and the (2, 3) ``[min, max]`` world box to
+    carve, mm (``bounds``, checked, or :func:`default_bounds`); ``None`` for the box when the
+    hull is empty, with ``n_points`` and ``empty_reason`` in ``st``.
+
+    Raises
+    ------
+    ValueError
+        A mask not of its camera's size, or malformed ``bounds``.
+    """
+    for cam, m in zip(cameras, masks):
+        if m.shape != (int(cam.height), int(cam.width)):
+            raise ValueError(f"camera {cam.name}: mask shape {m.shape}, camera is {cam.width}x{cam.height}")
+    boxes = [_object_box(m) for m in masks]
+    if any((not o) and box[2] == 0 for box, o in zip(boxes, ob)):
+        st.update(n_points=0, empty_reason="a closed camera sees no object")
+        return boxes, None
+    if bounds is None:
+        try:
+            bounds = _default_bounds(cameras, masks, ob, 1.0, None, boxes)
+        except ValueError as exc:
+            st.update(n_points=0, empty_reason=str(exc))
+            return boxes, None
+    bounds = np.asarray(bounds, float)
+    if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or not np.all(bounds[1] > bounds[0]):
+        raise ValueError(f"bounds must be (2, 3) [min, max], got {bounds!r}")
+    return boxes, bounds
+
+
+def _silhouette_views(
+    cameras: Sequence[Camera], masks: Sequence[np.ndarray], ob: Sequence[bool],
+    boxes: Sequence[tuple[int, int, int, int]], backend: str,
+) -> tuple[list[_View], np.ndarray]:
+    """Each camera's :class:`_View` of its silhouette's signed distances on a window around it
+    (:func:`_signed_distance_window`), each written straight into its row of one buffer that
+    the compiled kernels share.
+
+    Returns
+    -------
+    views : list of _View
+        One per camera, same order.
+    buf : (C, max window pixels) float32
+        The windows' signed distances, px, row ``c`` holding camera ``c``'s (row-major).
+    """
+    rects = [_window(m, o, _WINDOW_MARGIN_PX, box) for m, o, box in zip(masks, ob, boxes)]
+    buf = np.zeros((len(masks), max(w * h for _, _, w, h in rects)), dtype=np.float32)
+
+    def sdt_job(i: int) -> np.ndarray:
+        w, h = rects[i][2], rects[i][3]
+        return _signed_distance_window(masks[i], ob[i], _WINDOW_MARGIN_PX, buf[i, : w * h], boxes[i])[0]
+
+    if backend == "numba" and len(cameras) > 1:
+        # the distance transforms release the GIL: one thread per core
+        sdts = map_threads(sdt_job, range(len(masks)))
+    else:
+        sdts = [sdt_job(i) for i in range(len(masks))]
+    return [_prepare(c, sd, o, r[:2]) for c, sd, o, r in zip(cameras, sdts, ob, rects)], buf
+
+
+@dataclass(eq=False)
+class _Carving:
+    """The depth-first carving of :func:`carve`: its grid, its diagnostics and its points.
+
+    Attributes
+    ----------
+    views : sequence of _View
+    jit, stack
+        :mod:`carving_jit` and its :class:`carving_jit.ViewStack` of the views (numba
+        backend), else ``None``.
+    levels : int
+        Levels below the coarse cells (level ``levels`` has cells of ``voxel_mm``).
+    coarse : float
+        Edge of the level-0 cells, mm (``voxel_mm * 2**levels``).
+    n0 : (3,) int64
+        Level-0 cells along each axis.
+    origin : (3,) float
+        World position of the grid's corner, mm.
+    voxel_mm : float
+        Edge of the finest cells, mm.
+    h : float
+        Finite-difference step of the gradient, mm.
+    use_parent : bool
+        Newton chords from the parent cells' centres (they lie within ``h`` of the finest
+        cells' centres).
+    level_stats : list of dict
+        Per level: ``level``, ``cell_mm``, ``evaluated``, ``carved``, ``inside``, ``boundary``.
+    occ_lo, occ_hi : (3,) float
+        Box of the kept cells, mm (``+inf`` / ``-inf`` while none).
+    pts, nrm, res : list of arrays
+        Surface points (M, 3) mm, outward unit normals (M, 3), residuals ``f`` (M,) mm, by
+        chunk.
+    t_points : float
+        Seconds spent on the points (with the numba backend, with the last two levels'
+        cell tests).
+    """
+
+    views: Sequence[_View]
+    jit: Any
+    stack: Any
+    levels: int
+    coarse: float
+    n0: np.ndarray
+    origin: np.ndarray
+    voxel_mm: float
+    h: float
+    use_parent: bool
+    level_stats: list[dict[str, Any]]
+    occ_lo: np.ndarray = field(default_factory=lambda: np.full(3, np.inf))
+    occ_hi: np.ndarray = field(default_factory=lambda: np.full(3, -np.inf))
+    pts: list[np.ndarray] = field(default_factory=list)
+    nrm: list[np.ndarray] = field(default_factory=list)
+    res: list[np.ndarray] = field(default_factory=list)
+    t_points: float = 0.0
+
+    def occupy(self, lo: np.ndarray, hi: np.ndarray) -> None:
+        """Grow the occupied box to hold ``[lo, hi]`` (mm)."""
+        self.occ_lo = np.minimum(self.occ_lo, lo)
+        self.occ_hi = np.maximum(self.occ_hi, hi)
+
+    def add_points(self, X: np.ndarray, N: np.ndarray, f: np.ndarray) -> None:
+        """Keep a chunk of surface points (M, 3) mm, normals (M, 3) and residuals (M,) mm."""
+        self.pts.append(X)
+        self.nrm.append(N)
+        self.res.append(f)
+
+    def count(self, level: int, evaluated: int, carved: int, inside: int, boundary: int) -> None:
+        """Add cell counts to ``level``'s diagnostics."""
+        ls = self.level_stats[level]
+        ls["evaluated"] += evaluated
+        ls["carved"] += carved
+        ls["inside"] += inside
+        ls["boundary"] += boundary
+
+
+def _start_carving(
+    views: Sequence[_View], jit: Any, stack: Any, bounds: np.ndarray, voxel_mm: float, coarse_mm: float | None
+) -> _Carving:
+    """The coarse grid over ``bounds`` ((2, 3) mm): ``coarse_mm`` (default 1/16 of the largest
+    extent) rounded up to ``voxel_mm * 2**k``, centred on the box.
+
+    Raises
+    ------
+    ValueError
+        Too many cells (more than 2**24 coarse cells, or 2**30 finest along an axis).
+    """
+    extent = bounds[1] - bounds[0]
+    target = float(coarse_mm) if coarse_mm else float(np.max(extent)) / 16.0
+    levels = max(0, int(math.ceil(math.log2(max(target / voxel_mm, 1.0)) - 1e-9)))
+    coarse = voxel_mm * 2**levels
+    n0 = np.maximum(np.ceil(extent / coarse - 1e-9).astype(np.int64), 1)
+    if int(np.prod(n0)) > 1 << 24 or levels + math.log2(float(n0.max())) > 30:
+        raise ValueError(f"too many cells: voxel_mm={voxel_mm}, coarse_mm={coarse_mm} for bounds {bounds.tolist()}")
+    origin = 0.5 * (bounds[0] + bounds[1]) - 0.5 * n0 * coarse
+    level_stats = [
+        dict(level=k, cell_mm=coarse / 2**k, evaluated=0, carved=0, inside=0, boundary=0) for k in range(levels + 1)
+    ]
+    h = _GRAD_STEP_PX * _footprint(views, 0.5 * (bounds[0] + bounds[1]))
+    # Newton chords from the parent cells' centres when they lie within the gradient's
+    # finite-difference step of the finest cells' centres (the gradient averages over it).
+    use_parent = voxel_mm * math.sqrt(3.0) / 2.0 <= h
+    return _Carving(views, jit, stack, levels, coarse, n0, origin, voxel_mm, h, use_parent, level_stats)
+
+
+def _carve_cells(run: _Carving) -> None:
+    """Classify the grid's cells depth first over chunks, from the coarse level to the finest,
+    and Newton-project the finest boundary cells: memory stays bounded (about 8 chunks per
+    level) whatever the voxel size and the part's surface."""
+    gi = np.meshgrid(*[np.arange(k, dtype=np.int32) for k in run.n0], indexing="ij")
+    cells0 = np.stack([g.ravel() for g in gi], axis=1)  # (N, 3) integer cell coordinates
+    active0 = np.ones((len(cells0), len(run.views)), dtype=bool)  # cameras not yet proven "inside"
+    todo: list[tuple[int, np.ndarray, np.ndarray]] = [(0, cells0, active0)]
+    while todo:
+        level, cells, active = todo.pop()
+        if len(cells) > _CELL_CHUNK:
+            for s in reversed(range(0, len(cells), _CELL_CHUNK)):
+                todo.append((level, cells[s : s + _CELL_CHUNK], active[s : s + _CELL_CHUNK]))
+            continue
+        if run.jit is not None and level == run.levels - 1:
+            _jit_last_levels(run, level, cells, active)
+        elif run.jit is not None:
+            _jit_level(run, todo, level, cells, active)
+        else:
+            _numpy_level(run, todo, level, cells, active)
+
+
+def _jit_last_levels(run: _Carving, level: int, cells: np.ndarray, active: np.ndarray) -> None:
+    """The last two levels with the points, in one compiled pass from ``level``'s cells.
+
+    Parameters
+    ----------
+    level : int
+        ``run.levels - 1``.
+    cells : (N, 3) int32
+        Integer cell coordinates at ``level``.
+    active : (N, C) bool
+        Cameras not yet proven "inside" for each cell.
+    """
+    size = run.coarse / 2**level
+    r = size * math.sqrt(3.0) / 2.0
+    voxel_mm = run.voxel_mm
+    tp = time.perf_counter()
+    cnt_f, lohi_f, X, N, f = run.jit.finest_points(
+        run.stack, cells, active, run.origin, voxel_mm, r, voxel_mm * math.sqrt(3.0) / 2.0, _LIP, _SLACK_PX, run.h,
+        run.use_parent
+    )
+    for k, (lv, sz) in enumerate(((level, size), (run.levels, voxel_mm))):
+        run.count(lv, len(cells) if k == 0 else 8 * int(cnt_f[0, 2]), int(cnt_f[k, 0]), int(cnt_f[k, 1]),
+                  int(cnt_f[k, 2]))
+        if np.all(lohi_f[k, 1] > lohi_f[k, 0]):
+            run.occupy(run.origin + lohi_f[k, 0] * sz, run.origin + lohi_f[k, 1] * sz)
+    run.add_points(X, N, f)
+    run.t_points += time.perf_counter() - tp
+
+
+def _jit_level(
+    run: _Carving, todo: list[tuple[int, np.ndarray, np.ndarray]], level: int, cells: np.ndarray, active: np.ndarray
+) -> None:
+    """Classify one chunk of ``level``'s cells with the compiled kernels: the boundary cells'
+    children go on ``todo``, or, at the finest level, their centres are Newton-projected.
+
+    Parameters
+    ----------
+    cells : (N, 3) int32
+        Integer cell coordinates at ``level``.
+    active : (N, C) bool
+        Cameras not yet proven "inside" for each cell.
+    """
+    size = run.coarse / 2**level
+    r = size * math.sqrt(3.0) / 2.0
+    finest = level == run.levels
+    status, act, bcount = run.jit.classify_cells(run.stack, cells, active, run.origin, size, r, _LIP, _SLACK_PX)
+    cnt = bcount.sum(axis=0)
+    nb = int(cnt[2])
+    run.count(level, len(cells), int(cnt[0]), int(cnt[1]), nb)
+    if cnt[1] == 0 and nb == 0:
+        return
+    lohi, *rest = run.jit.gather(cells, act, status, bcount, 1 if finest else 0, run.origin, size)
+    if np.all(lohi[1] > lohi[0]):
+        run.occupy(run.origin + lohi[0] * size, run.origin + lohi[1] * size)
+    if nb == 0:
+        return
+    if finest:
+        tp = time.perf_counter()
+        A, Pc, B = rest
+        run.add_points(*run.jit.refine_points(run.stack, A, Pc if run.use_parent else None, B, run.voxel_mm, run.h))
+        run.t_points += time.perf_counter() - tp
+    else:
+        todo.append((level + 1, *rest))
+
+
+def _numpy_level(
+    run: _Carving, todo: list[tuple[int, np.ndarray, np.ndarray]], level: int, cells: np.ndarray, active: np.ndarray
+) -> None:
+    """:func:`_jit_level` with numpy (the reference): classify one chunk of ``level``'s cells
+    against each camera (:func:`_classify`); the boundary cells' children go on ``todo``, or,
+    at the finest level, their centres are Newton-projected (:func:`_refine_points`).
+
+    Parameters
+    ----------
+    cells : (N, 3) int32
+        Integer cell coordinates at ``level``.
+    active : (N, C) bool
+        Cameras not yet proven "inside" for each cell.
+    """
+    size = run.coarse / 2**level
+    r = size * math.sqrt(3.0) / 2.0
+    finest = level == run.levels
+    origin = run.origin
+    act = active.copy()
+    P = origin[:, None] + (cells.T + 0.5) * size  # (3, n) centres
+    carved = np.zeros(len(cells), dtype=bool)
+    for c, v in enumerate(run.views):
+        sel = np.flatnonzero(act[:, c] & ~carved)
+        if sel.size == 0:
+            continue
+        out, inn = _classify(v, P[:, sel], r)
+        carved[sel[out]] = True
+        act[sel[inn], c] = False
+    undecided = act.any(axis=1)
+    inside = ~carved & ~undecided
+    bnd = ~carved & undecided
+    run.count(level, len(cells), int(carved.sum()), int(inside.sum()), int(bnd.sum()))
+    kept = inside | bnd if finest else inside
+    if kept.any():
+        run.occupy(origin + cells[kept].min(axis=0) * size, origin + (cells[kept].max(axis=0) + 1) * size)
+    if not bnd.any():
+        return
+    if finest:
+        # surface points, Newton-projected onto f = 0
+        tp = time.perf_counter()
+        Pc = origin[:, None] + ((cells[bnd].T >> 1) + 0.5) * (2.0 * size) if run.use_parent else None
+        run.add_points(*_refine_points(run.views, P[:, bnd], Pc, act[bnd], run.voxel_mm, run.h))
+        run.t_points += time.perf_counter() - tp
+    else:
+        b = cells[bnd]
+        todo.append(
+            (
+                level + 1,
+                (b[:, None, :] * 2 + _CHILD_OFFSETS[None]).reshape(-1, 3),
+                np.repeat(act[bnd], 8, axis=0),
+            )
+        )
+
+
+def _finish(
+    run: _Carving, bounds: np.ndarray, mesh_voxel_mm: float | None, st: dict[str, Any], t0: float
+) -> Reconstruction:
+    """The carving's points gathered, its display mesh over the occupied cells
+    (:func:`_mesh`) and its diagnostics in ``st`` (``t0``: the start, :func:`time.perf_counter`
+    seconds)."""
+    points = np.concatenate(run.pts) if run.pts else np.zeros((0, 3))
+    normals = np.concatenate(run.nrm) if run.nrm else np.zeros((0, 3))
+    resid = np.concatenate(run.res) if run.res else np.zeros(0)
+    t2 = time.perf_counter()
+    t1 = t2 - run.t_points
+    level_stats = run.level_stats
+    st.update(
+        levels=level_stats,
+        bounds=bounds.copy(),
+        coarse_mm=run.coarse,
+        n_finest_evaluated=level_stats[-1]["evaluated"],
+        n_dense_finest=int(np.prod(run.n0 * 2**run.levels)),
+        n_boundary_finest=level_stats[-1]["boundary"],
+    )
+
+    # Display mesh over the occupied cells.
+    voxel_mm, occ_lo, occ_hi = run.voxel_mm, run.occ_lo, run.occ_hi
+    mv = float(mesh_voxel_mm) if mesh_voxel_mm else max(voxel_mm, 0.5)
+    info: dict[str, Any] = dict(mesh_grid=0, mesh_evaluated=0)
+    if np.all(np.isfinite(occ_lo)) and len(points):
+        mv = _mesh_pitch(occ_lo, occ_hi, mv)
+        verts, faces, info = _mesh(run.views, occ_lo - mv, occ_hi + mv, mv, run.jit, run.stack)
+    else:
+        verts, faces = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
+    t3 = time.perf_counter()
+    st.update(
+        n_points=len(points),
+        residual_mm_max=float(np.max(np.abs(resid), initial=0.0)),
+        occupied_bounds=np.array([occ_lo, occ_hi]),
+        mesh_voxel_mm=mv,
+        time_s=dict(carve=t1 - t0, points=t2 - t1, mesh=t3 - t2, total=t3 - t0),
+        **info,
+    )
+    return Reconstruction(points=points, normals=normals, vertices=verts, faces=faces, voxel_mm=voxel_mm)
+
+
 def carve(
     cameras: Sequence[Camera],
     masks: Sequence[np.ndarray],
@@ -1218,226 +1680,20 @@ def carve(
     ValueError
         Bad arguments (sizes, ``voxel_mm <= 0``, malformed ``bounds``).
     """
-    if backend not in ("auto", "numba", "numpy"):
-        raise ValueError(f"backend must be 'auto', 'numba' or 'numpy', got {backend!r}")
-    if backend == "auto":
-        try:
-            import numba  # noqa: F401
-
-            backend = "numba"
-        except ImportError:  # pragma: no cover - numba is a dependency
-            backend = "numpy"
-    voxel_mm = float(voxel_mm)
-    if not (voxel_mm > 0 and np.isfinite(voxel_mm)):
-        raise ValueError(f"voxel_mm must be > 0, got {voxel_mm}")
-    if len(cameras) != len(masks):
-        raise ValueError(f"{len(cameras)} cameras but {len(masks)} masks")
-    if len(cameras) == 0:
-        raise ValueError("no cameras")
-    ob = [False] * len(cameras) if open_border is None else [bool(b) for b in open_border]
-    if len(ob) != len(cameras):
-        raise ValueError(f"{len(cameras)} cameras but {len(ob)} open_border flags")
-    masks = [np.ascontiguousarray(m, dtype=bool) for m in masks]
+    backend = _resolve_backend(backend)
+    voxel_mm, ob, masks = _checked_inputs(cameras, masks, voxel_mm, open_border)
     st: dict[str, Any] = stats if stats is not None else {}
     st.clear()
     t0 = time.perf_counter()
-    for cam, m in zip(cameras, masks):
-        if m.shape != (int(cam.height), int(cam.width)):
-            raise ValueError(f"camera {cam.name}: mask shape {m.shape}, camera is {cam.width}x{cam.height}")
-    boxes = [_object_box(m) for m in masks]
-    if any((not o) and box[2] == 0 for box, o in zip(boxes, ob)):
-        st.update(n_points=0, empty_reason="a closed camera sees no object")
+    boxes, box = _carve_bounds(cameras, masks, ob, bounds, st)
+    if box is None:
         return _empty(voxel_mm)
-    if bounds is None:
-        try:
-            bounds = _default_bounds(cameras, masks, ob, 1.0, None, boxes)
-        except ValueError as exc:
-            st.update(n_points=0, empty_reason=str(exc))
-            return _empty(voxel_mm)
-    bounds = np.asarray(bounds, float)
-    if bounds.shape != (2, 3) or not np.all(np.isfinite(bounds)) or not np.all(bounds[1] > bounds[0]):
-        raise ValueError(f"bounds must be (2, 3) [min, max], got {bounds!r}")
-    # Signed distances on windows around the silhouettes (_signed_distance_window), each
-    # written straight into its row of one buffer that the compiled kernels share.
-    rects = [_window(m, o, _WINDOW_MARGIN_PX, box) for m, o, box in zip(masks, ob, boxes)]
-    buf = np.zeros((len(masks), max(w * h for _, _, w, h in rects)), dtype=np.float32)
-
-    def sdt_job(i: int) -> np.ndarray:
-        w, h = rects[i][2], rects[i][3]
-        return _signed_distance_window(masks[i], ob[i], _WINDOW_MARGIN_PX, buf[i, : w * h], boxes[i])[0]
-
-    if backend == "numba" and len(cameras) > 1:
-        # the distance transforms release the GIL: one thread per core
-        from inspector.kernels.threads import map_threads
-
-        sdts = map_threads(sdt_job, range(len(masks)))
-    else:
-        sdts = [sdt_job(i) for i in range(len(masks))]
-    views = [_prepare(c, sd, o, r[:2]) for c, sd, o, r in zip(cameras, sdts, ob, rects)]
-    n_cam = len(views)
+    views, buf = _silhouette_views(cameras, masks, ob, boxes, backend)
     jit: Any = None
     stack: Any = None
     if backend == "numba":
-        from inspector.kernels import carving_jit as jit
-
+        jit = carving_jit
         stack = jit.stack_views(views, buf)
-
-    extent = bounds[1] - bounds[0]
-    target = float(coarse_mm) if coarse_mm else float(np.max(extent)) / 16.0
-    levels = max(0, int(math.ceil(math.log2(max(target / voxel_mm, 1.0)) - 1e-9)))
-    coarse = voxel_mm * 2**levels
-    n0 = np.maximum(np.ceil(extent / coarse - 1e-9).astype(np.int64), 1)
-    if int(np.prod(n0)) > 1 << 24 or levels + math.log2(float(n0.max())) > 30:
-        raise ValueError(f"too many cells: voxel_mm={voxel_mm}, coarse_mm={coarse_mm} for bounds {bounds.tolist()}")
-    origin = 0.5 * (bounds[0] + bounds[1]) - 0.5 * n0 * coarse
-
-    gi = np.meshgrid(*[np.arange(k, dtype=np.int32) for k in n0], indexing="ij")
-    cells0 = np.stack([g.ravel() for g in gi], axis=1)  # (N, 3) integer cell coordinates
-    active0 = np.ones((len(cells0), n_cam), dtype=bool)  # cameras not yet proven "inside"
-    occ_lo = np.full(3, np.inf)
-    occ_hi = np.full(3, -np.inf)
-    level_stats = [
-        dict(level=k, cell_mm=coarse / 2**k, evaluated=0, carved=0, inside=0, boundary=0) for k in range(levels + 1)
-    ]
-    h = _GRAD_STEP_PX * _footprint(views, 0.5 * (bounds[0] + bounds[1]))
-    # Newton chords from the parent cells' centres when they lie within the gradient's
-    # finite-difference step of the finest cells' centres (the gradient averages over it).
-    use_parent = voxel_mm * math.sqrt(3.0) / 2.0 <= h
-    pts_l, nrm_l, res_l = [], [], []
-    t_points = 0.0
-    # Depth first over chunks of cells: memory stays bounded (about 8 chunks per level)
-    # whatever the voxel size and the part's surface.
-    todo: list[tuple[int, np.ndarray, np.ndarray]] = [(0, cells0, active0)]
-    while todo:
-        level, cells, active = todo.pop()
-        if len(cells) > _CELL_CHUNK:
-            for s in reversed(range(0, len(cells), _CELL_CHUNK)):
-                todo.append((level, cells[s : s + _CELL_CHUNK], active[s : s + _CELL_CHUNK]))
-            continue
-        size = coarse / 2**level
-        r = size * math.sqrt(3.0) / 2.0
-        finest = level == levels
-        if jit is not None and level == levels - 1:
-            # the last two levels with the points, in one pass from this level's cells
-            tp = time.perf_counter()
-            cnt_f, lohi_f, X, N, f = jit.finest_points(
-                stack, cells, active, origin, voxel_mm, r, voxel_mm * math.sqrt(3.0) / 2.0, _LIP, _SLACK_PX, h,
-                use_parent
-            )
-            for k, (lv, sz) in enumerate(((level, size), (levels, voxel_mm))):
-                ls = level_stats[lv]
-                ls["evaluated"] += len(cells) if k == 0 else 8 * int(cnt_f[0, 2])
-                ls["carved"] += int(cnt_f[k, 0])
-                ls["inside"] += int(cnt_f[k, 1])
-                ls["boundary"] += int(cnt_f[k, 2])
-                if np.all(lohi_f[k, 1] > lohi_f[k, 0]):
-                    occ_lo = np.minimum(occ_lo, origin + lohi_f[k, 0] * sz)
-                    occ_hi = np.maximum(occ_hi, origin + lohi_f[k, 1] * sz)
-            pts_l.append(X)
-            nrm_l.append(N)
-            res_l.append(f)
-            t_points += time.perf_counter() - tp
-            continue
-        if jit is not None:
-            status, act, bcount = jit.classify_cells(stack, cells, active, origin, size, r, _LIP, _SLACK_PX)
-            cnt = bcount.sum(axis=0)
-            nb = int(cnt[2])
-            ls = level_stats[level]
-            ls["evaluated"] += len(cells)
-            ls["carved"] += int(cnt[0])
-            ls["inside"] += int(cnt[1])
-            ls["boundary"] += nb
-            if cnt[1] == 0 and nb == 0:
-                continue
-            lohi, *rest = jit.gather(cells, act, status, bcount, 1 if finest else 0, origin, size)
-            if np.all(lohi[1] > lohi[0]):
-                occ_lo = np.minimum(occ_lo, origin + lohi[0] * size)
-                occ_hi = np.maximum(occ_hi, origin + lohi[1] * size)
-            if nb == 0:
-                continue
-            if finest:
-                tp = time.perf_counter()
-                A, Pc, B = rest
-                X, N, f = jit.refine_points(stack, A, Pc if use_parent else None, B, voxel_mm, h)
-                pts_l.append(X)
-                nrm_l.append(N)
-                res_l.append(f)
-                t_points += time.perf_counter() - tp
-            else:
-                todo.append((level + 1, *rest))
-            continue
-        else:
-            act = active.copy()
-            P = origin[:, None] + (cells.T + 0.5) * size  # (3, n) centres
-            carved = np.zeros(len(cells), dtype=bool)
-            for c, v in enumerate(views):
-                sel = np.flatnonzero(act[:, c] & ~carved)
-                if sel.size == 0:
-                    continue
-                out, inn = _classify(v, P[:, sel], r)
-                carved[sel[out]] = True
-                act[sel[inn], c] = False
-            undecided = act.any(axis=1)
-            inside = ~carved & ~undecided
-            bnd = ~carved & undecided
-        ls = level_stats[level]
-        ls["evaluated"] += len(cells)
-        ls["carved"] += int(carved.sum())
-        ls["inside"] += int(inside.sum())
-        ls["boundary"] += int(bnd.sum())
-        kept = inside | bnd if finest else inside
-        if kept.any():
-            occ_lo = np.minimum(occ_lo, origin + cells[kept].min(axis=0) * size)
-            occ_hi = np.maximum(occ_hi, origin + (cells[kept].max(axis=0) + 1) * size)
-        if not bnd.any():
-            continue
-        if finest:
-            # surface points, Newton-projected onto f = 0
-            tp = time.perf_counter()
-            Pc = origin[:, None] + ((cells[bnd].T >> 1) + 0.5) * (2.0 * size) if use_parent else None
-            X, N, f = _refine_points(views, P[:, bnd], Pc, act[bnd], voxel_mm, h)
-            pts_l.append(X)
-            nrm_l.append(N)
-            res_l.append(f)
-            t_points += time.perf_counter() - tp
-        else:
-            b = cells[bnd]
-            todo.append(
-                (
-                    level + 1,
-                    (b[:, None, :] * 2 + _CHILD_OFFSETS[None]).reshape(-1, 3),
-                    np.repeat(act[bnd], 8, axis=0),
-                )
-            )
-    points = np.concatenate(pts_l) if pts_l else np.zeros((0, 3))
-    normals = np.concatenate(nrm_l) if nrm_l else np.zeros((0, 3))
-    resid = np.concatenate(res_l) if res_l else np.zeros(0)
-    t2 = time.perf_counter()
-    t1 = t2 - t_points
-    st.update(
-        levels=level_stats,
-        bounds=bounds.copy(),
-        coarse_mm=coarse,
-        n_finest_evaluated=level_stats[-1]["evaluated"],
-        n_dense_finest=int(np.prod(n0 * 2**levels)),
-        n_boundary_finest=level_stats[-1]["boundary"],
-    )
-
-    # Display mesh over the occupied cells.
-    mv = float(mesh_voxel_mm) if mesh_voxel_mm else max(voxel_mm, 0.5)
-    info: dict[str, Any] = dict(mesh_grid=0, mesh_evaluated=0)
-    if np.all(np.isfinite(occ_lo)) and len(points):
-        mv = _mesh_pitch(occ_lo, occ_hi, mv)
-        verts, faces, info = _mesh(views, occ_lo - mv, occ_hi + mv, mv, jit, stack)
-    else:
-        verts, faces = np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64)
-    t3 = time.perf_counter()
-    st.update(
-        n_points=len(points),
-        residual_mm_max=float(np.max(np.abs(resid), initial=0.0)),
-        occupied_bounds=np.array([occ_lo, occ_hi]),
-        mesh_voxel_mm=mv,
-        time_s=dict(carve=t1 - t0, points=t2 - t1, mesh=t3 - t2, total=t3 - t0),
-        **info,
-    )
-    return Reconstruction(points=points, normals=normals, vertices=verts, faces=faces, voxel_mm=voxel_mm)
+    run = _start_carving(views, jit, stack, box, voxel_mm, coarse_mm)
+    _carve_cells(run)
+    return _finish(run, box, mesh_voxel_mm, st, t0)

@@ -54,8 +54,8 @@ from numba import types
 from numba.extending import intrinsic
 
 # OpenMP (libgomp): the TBB found in some environments is too old (see hull_jit). Set
-# before the first parallel kernel runs; this module is imported only by the numba backend
-# of :func:`carving.carve` (lazily).
+# before the first parallel kernel runs; this module is imported with :mod:`carving` (its
+# numba backend).
 numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]  # set at run time
 
 __all__ = ["ViewStack", "stack_views", "classify_cells", "f_all", "refine_points", "finest_points", "gather",

@@ -320,49 +320,20 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, angle_tol_deg: flo
     ValueError
         Malformed arrays or tolerances.
     """
-    Vin = np.asarray(vertices, float)
-    Fin = np.asarray(faces)
-    if Vin.ndim != 2 or Vin.shape[1] != 3 or Fin.ndim != 2 or Fin.shape[1] != 3:
-        raise ValueError(f"vertices must be (V, 3) and faces (F, 3), got {Vin.shape} and {Fin.shape}")
-    if len(Fin) == 0:
+    mesh = _checked_mesh(vertices, faces, angle_tol_deg, dist_tol_mm, smooth_deg)
+    if mesh is None:
         return []
-    if not np.isfinite(Vin).all():
-        raise ValueError("vertices hold non-finite values")
-    if Fin.min() < 0 or Fin.max() >= len(Vin):
-        raise ValueError("faces index vertices that do not exist")
-    if not (0 < angle_tol_deg < smooth_deg < 90) or dist_tol_mm <= 0:
-        raise ValueError("need 0 < angle_tol_deg < smooth_deg < 90 and dist_tol_mm > 0")
-    V, Fm, normals, areas, pairs = mesh_topology(Vin, Fin.astype(np.int64))
+    V, Fm, normals, areas, pairs = mesh_topology(mesh[0], mesh[1].astype(np.int64))
     total = float(areas.sum())
     min_area = 0.002 * total if min_area_mm2 is None else float(min_area_mm2)
     size = float(np.linalg.norm(np.ptp(V, axis=0)))
     cent = V[Fm].mean(axis=1)
     label = _planar_regions(V, Fm, normals, areas, pairs, float(np.cos(np.radians(angle_tol_deg))), dist_tol_mm)
     nreg = int(label.max()) + 1
-    reg_area = np.bincount(label, weights=areas, minlength=nreg)
-    reg_normal = np.zeros((nreg, 3))
-    np.add.at(reg_normal, label, normals * areas[:, None])
-    reg_normal /= np.maximum(np.linalg.norm(reg_normal, axis=1), 1e-300)[:, None]
-    reg_cent = np.zeros((nreg, 3))
-    np.add.at(reg_cent, label, cent * areas[:, None])
-    reg_cent /= np.maximum(reg_area, 1e-300)[:, None]
+    reg_area, reg_normal, reg_cent = _region_stats(label, nreg, normals, areas, cent)
     members = _members(label, nreg)
 
-    # smooth adjacency between planar regions
-    la, lb = label[pairs[:, 0]], label[pairs[:, 1]]
-    cos_smooth = float(np.cos(np.radians(smooth_deg)))
-    sm = (la != lb) & (np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) > cos_smooth)
-    rp = np.unique(np.sort(np.column_stack([la[sm], lb[sm]]), axis=1), axis=0)
-    groups = _components(nreg, rp)
-    # A region much larger than its group's median is a face of its own (tangent plane).
-    large = np.zeros(nreg, bool)
-    for g in groups:
-        if len(g) > 1:
-            med = float(np.median(reg_area[g]))
-            large[g] = reg_area[g] > _LARGE * med
-    keep = ~large[rp[:, 0]] & ~large[rp[:, 1]]
-    rp = rp[keep]
-    groups = _components(nreg, rp)
+    rp, groups = _smooth_groups(label, nreg, pairs, normals, reg_area, smooth_deg)
     rstart, rnbr = _csr(nreg, rp)
 
     found: list[tuple[str, dict[str, Any], np.ndarray]] = []
@@ -410,6 +381,111 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, angle_tol_deg: flo
                               *(round(x, 4) for x in _anchor(f))))
     width = max(2, len(str(len(feats))))
     return [Feature(f"F{k + 1:0{width}d}", f.kind, f.nominal, f.faces, f.area_mm2, f.triangles) for k, f in enumerate(feats)]
+
+
+def _checked_mesh(vertices: np.ndarray, faces: np.ndarray, angle_tol_deg: float, dist_tol_mm: float,
+                  smooth_deg: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`find_features`'s arguments checked: the (V, 3) float vertices (mm) and (F, 3)
+    faces as arrays, or ``None`` for a mesh without faces.
+
+    Raises
+    ------
+    ValueError
+        Malformed arrays or tolerances.
+    """
+    Vin = np.asarray(vertices, float)
+    Fin = np.asarray(faces)
+    if Vin.ndim != 2 or Vin.shape[1] != 3 or Fin.ndim != 2 or Fin.shape[1] != 3:
+        raise ValueError(f"vertices must be (V, 3) and faces (F, 3), got {Vin.shape} and {Fin.shape}")
+    if len(Fin) == 0:
+        return None
+    if not np.isfinite(Vin).all():
+        raise ValueError("vertices hold non-finite values")
+    if Fin.min() < 0 or Fin.max() >= len(Vin):
+        raise ValueError("faces index vertices that do not exist")
+    if not (0 < angle_tol_deg < smooth_deg < 90) or dist_tol_mm <= 0:
+        raise ValueError("need 0 < angle_tol_deg < smooth_deg < 90 and dist_tol_mm > 0")
+    return Vin, Fin
+
+
+def _region_stats(label: np.ndarray, nreg: int, normals: np.ndarray, areas: np.ndarray,
+                  cent: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Area, mean normal and centroid of each planar region.
+
+    Parameters
+    ----------
+    label : (F,) int
+        Planar region of each triangle (``0 .. nreg - 1``).
+    nreg : int
+        Regions.
+    normals : (F, 3) float
+        Unit triangle normals.
+    areas : (F,) float
+        Triangle areas, mm^2.
+    cent : (F, 3) float
+        Triangle centroids, mm.
+
+    Returns
+    -------
+    reg_area : (nreg,) float
+        mm^2.
+    reg_normal : (nreg, 3) float
+        Area-weighted mean normal, unit.
+    reg_cent : (nreg, 3) float
+        Area-weighted centroid, mm.
+    """
+    reg_area = np.bincount(label, weights=areas, minlength=nreg)
+    reg_normal = np.zeros((nreg, 3))
+    np.add.at(reg_normal, label, normals * areas[:, None])
+    reg_normal /= np.maximum(np.linalg.norm(reg_normal, axis=1), 1e-300)[:, None]
+    reg_cent = np.zeros((nreg, 3))
+    np.add.at(reg_cent, label, cent * areas[:, None])
+    reg_cent /= np.maximum(reg_area, 1e-300)[:, None]
+    return reg_area, reg_normal, reg_cent
+
+
+def _smooth_groups(label: np.ndarray, nreg: int, pairs: np.ndarray, normals: np.ndarray, reg_area: np.ndarray,
+                   smooth_deg: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Planar regions meeting at a dihedral angle below ``smooth_deg``, in connected groups; a
+    region more than ``_LARGE`` times its group's median area is a face of its own (a
+    tangent plane) and joins no group.
+
+    Parameters
+    ----------
+    label : (F,) int
+        Planar region of each triangle.
+    nreg : int
+        Regions.
+    pairs : (E, 2) int
+        Edge-adjacent triangles.
+    normals : (F, 3) float
+        Unit triangle normals.
+    reg_area : (nreg,) float
+        Region areas, mm^2.
+    smooth_deg : float
+        Largest dihedral angle between two facets of one curved surface, degrees.
+
+    Returns
+    -------
+    rp : (P, 2) int
+        Smoothly adjacent region pairs (sorted, unique), the large regions' left out.
+    groups : list of (k,) int
+        Connected groups of regions over ``rp``.
+    """
+    la, lb = label[pairs[:, 0]], label[pairs[:, 1]]
+    cos_smooth = float(np.cos(np.radians(smooth_deg)))
+    sm = (la != lb) & (np.einsum("ij,ij->i", normals[pairs[:, 0]], normals[pairs[:, 1]]) > cos_smooth)
+    rp = np.unique(np.sort(np.column_stack([la[sm], lb[sm]]), axis=1), axis=0)
+    groups = _components(nreg, rp)
+    # A region much larger than its group's median is a face of its own (tangent plane).
+    large = np.zeros(nreg, bool)
+    for g in groups:
+        if len(g) > 1:
+            med = float(np.median(reg_area[g]))
+            large[g] = reg_area[g] > _LARGE * med
+    keep = ~large[rp[:, 0]] & ~large[rp[:, 1]]
+    rp = rp[keep]
+    return rp, _components(nreg, rp)
 
 
 def _merge_curved(found: list[tuple[str, dict[str, Any], np.ndarray]], pairs: np.ndarray, nfaces: int, V: np.ndarray,

@@ -14,6 +14,8 @@ from collections.abc import Sequence
 import numba
 import numpy as np
 
+from inspector.kernels.threads import map_threads
+
 __all__ = ["CameraStack", "stack_views", "violation"]
 
 
@@ -40,11 +42,16 @@ class CameraStack:
         maps instead of 320 MB, read from the cache instead of memory); the values read
         are exactly those of the whole map.
     open_border : (C,) bool
+    speed_cache : (bytes, (C,) float) or None
+        The last per-camera projection speed bound (px / mm) computed on this stack and the
+        bounds it holds for (:func:`inspector.kernels.bcps_jit.camera_speed`): the same
+        bounds for every camera of a pass.
     """
 
     def __init__(self, K, R, t, dist, maps, sizes, open_border):
         self.K, self.R, self.t, self.dist = K, R, t, dist
         self.maps, self.sizes, self.open_border = maps, sizes, open_border
+        self.speed_cache: tuple[bytes, np.ndarray] | None = None
 
 
 #: Outside values are clamped at minus this, px (see :func:`_with_depth`).
@@ -146,8 +153,6 @@ def _with_depth_box(inside: np.ndarray, known: tuple[int, int, int, int], crop: 
 def stack_views(views: Sequence) -> CameraStack:
     """Pack :class:`inspector.kernels.bcps.View` objects (maps as :func:`_with_depth`,
     each cropped to its silhouette's neighbourhood: :class:`CameraStack`)."""
-    from inspector.kernels.threads import map_threads
-
     C = len(views)
     # OpenCV and numpy release the GIL on these arrays: cameras in parallel
     crops = map_threads(lambda v: _with_depth_crop(v.inside), views)

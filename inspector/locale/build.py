@@ -33,11 +33,11 @@ _ROOT = _PACKAGE.parent
 
 
 def SOURCES() -> list[Path]:
-    """The files whose texts are translated: the PDF report, `inspector run`'s lines, the
-    shift counters' text (``translate("Shift", ...)``, which the GUI's Qt files hold too) and
-    the shift report."""
-    return [_PACKAGE / "report.py", _PACKAGE / "outputs.py", _PACKAGE / "cli.py", _PACKAGE / "shift.py",
-            _PACKAGE / "shift_report.py"]
+    """The files whose texts are translated: the PDF report (its page and the reading of its
+    result folder too), `inspector run`'s lines, the shift counters' text (``translate("Shift",
+    ...)``, which the GUI's Qt files hold too) and the shift report."""
+    return [_PACKAGE / "report.py", _PACKAGE / "report_pdf.py", _PACKAGE / "report_read.py", _PACKAGE / "outputs.py",
+            _ROOT / "inspector_frontends" / "cli.py", _PACKAGE / "shift.py", _PACKAGE / "shift_report.py"]
 
 
 def po_file(lang: str) -> Path:

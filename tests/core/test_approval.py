@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from inspector import approval, roles
-from inspector_frontends.cli import main
+from inspector import approval, roles, roles_password
 from inspector.recipe import load_recipe
+from inspector_frontends.cli import main
 
 PASSWORD = "correct-horse-42"
 DEFAULT = Path(__file__).resolve().parents[2] / "recipes" / "default.toml"
@@ -25,7 +25,7 @@ def station(tmp_path, monkeypatch):
     """A private configuration folder with the engineer password set (cheap hash)."""
     d = tmp_path / "config"
     monkeypatch.setenv("INSPECTOR_CONFIG_DIR", str(d))
-    monkeypatch.setattr(roles, "PBKDF2_ITERATIONS", 200_000)
+    monkeypatch.setattr(roles_password, "PBKDF2_ITERATIONS", 200_000)
     roles.set_password(PASSWORD)
     return d
 

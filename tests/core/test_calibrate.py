@@ -67,8 +67,8 @@ def _one_line_exit_2(capsys, argv, *, must: str, out: Path | None = None) -> str
 
 
 def test_calibrates_the_rig_from_rendered_captures(calibrated, captures):
-    from inspector.kernels.calibration import compare_rigs
     from inspector.capture_folder import read_rig
+    from inspector.kernels.calibration import compare_rigs
 
     rc, out, stdout, stderr = calibrated
     assert rc == 0, stderr

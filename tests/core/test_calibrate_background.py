@@ -55,8 +55,8 @@ def _one_line_exit_2(capsys, argv: list[str], must: str, nothing: Path) -> str:
 
 
 def test_averages_the_frames_where_segmentation_finds_them(tmp_path, capsys):
-    from inspector.model import Rig
     from inspector.capture_folder import read_capture, write_capture
+    from inspector.model import Rig
     from inspector_drivers.sim.rig import sphere_rig
     from inspector_plugins.segment import SegmentParams, segment_camera
 
@@ -177,10 +177,10 @@ def test_a_live_driver_attaches_the_reference_to_every_capture(tmp_path, capsys)
     with every capture (so ``inspector capture`` writes it into each capture folder)."""
     from types import SimpleNamespace
 
+    from inspector.capture_folder import read_capture, save_capture
     from inspector.errors import InputError
     from inspector.model import Rig
     from inspector_drivers.genicam.common import Frame, LiveDriver
-    from inspector.capture_folder import read_capture, save_capture
     from inspector_drivers.sim.rig import sphere_rig
 
     rig = Rig(tuple(sphere_rig(3, width=SIZE, height=SIZE, mm_per_px=1.0).cameras))

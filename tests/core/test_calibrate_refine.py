@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from inspector.calibration.command import write_rig
-from inspector_frontends.cli import main
 from inspector.kernels.silhouette_fit import turn_camera
 from inspector.model import Camera, Rig
+from inspector_frontends.cli import main
 
 pytestmark = pytest.mark.slow
 
@@ -44,8 +44,8 @@ KNOCK_PX = 2.0
 
 
 def _simulate(root: Path, count: int, **params) -> Rig:
-    from inspector.params import build_params
     from inspector.capture_folder import save_capture
+    from inspector.params import build_params
     from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
     p = build_params(SimParams, params, "test")

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 import trimesh
 
-from inspector.errors import CaptureError
-from inspector.model import Camera, Rig
 from inspector.capture_folder import (
     is_capture_folder,
     read_capture,
     read_rig,
     write_capture,
 )
+from inspector.errors import CaptureError
+from inspector.model import Camera, Rig
 
 W, H = 64, 48
 

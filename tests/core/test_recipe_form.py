@@ -8,10 +8,10 @@ from pathlib import Path
 
 import pytest
 
-from inspector_frontends.cli import main
 from inspector.errors import RecipeError
 from inspector.recipe import load_recipe
 from inspector.recipe_form import Field, RecipeForm, form_for, save_new, validate
+from inspector_frontends.cli import main
 
 
 @pytest.fixture

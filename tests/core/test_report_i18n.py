@@ -13,9 +13,9 @@ from babel.messages.pofile import read_po
 from pypdf import PdfReader
 
 from inspector import locale
-from inspector_frontends.cli import main
 from inspector.locale import build
 from inspector.report import render_pdf
+from inspector_frontends.cli import main
 
 DEMO = Path(__file__).resolve().parents[2] / "recipes" / "demo.toml"
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from pypdf import PdfReader
 
-from inspector_frontends.cli import main
 from inspector.errors import InputError
 from inspector.report import render_pdf
+from inspector_frontends.cli import main
 
 DEMO = Path(__file__).resolve().parents[2] / "recipes" / "demo.toml"
 DEMO_SHA = hashlib.sha256(DEMO.read_bytes()).hexdigest()

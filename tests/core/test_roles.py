@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from inspector import roles
+from inspector import roles, roles_password
 
 PASSWORD = "correct-horse-42"
 
@@ -32,7 +32,7 @@ def config(tmp_path, monkeypatch):
 @pytest.fixture
 def fast_hash(monkeypatch):
     """The smallest iteration count allowed, so a test can log in many times."""
-    monkeypatch.setattr(roles, "PBKDF2_ITERATIONS", 200_000)
+    monkeypatch.setattr(roles_password, "PBKDF2_ITERATIONS", 200_000)
 
 
 class FakeClock:
