@@ -40,6 +40,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inspector import hookimpl
+from inspector.errors import InspectorError, RecipeError
+from inspector.manager import create_plugin_manager
+from inspector.params import build_params
+from inspector.registry import CommandSpec
 
 if TYPE_CHECKING:
     from inspector.manager import PluginManager
@@ -103,8 +107,6 @@ def add_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def parse_param(text: str) -> tuple[str, Any]:
     """``"key=value"`` -> ``(key, value)``; the value is TOML if it parses, else the string."""
-    from inspector.errors import RecipeError
-
     key, sep, raw = text.partition("=")
     key = key.strip()
     if not sep or not _KEY.match(key):
@@ -119,8 +121,6 @@ def parse_param(text: str) -> tuple[str, Any]:
 
 def driver_table(recipe: str | None) -> tuple[str | None, dict[str, Any]]:
     """The recipe's ``[driver]`` ``use`` and ``params`` (RecipeError naming the file)."""
-    from inspector.errors import RecipeError
-
     if not recipe:
         return None, {}
     from inspector.recipe import read_recipe_toml
@@ -157,17 +157,12 @@ def run(args: argparse.Namespace, pm: PluginManager | None = None) -> int:
     """
     import dataclasses
 
-    from inspector.errors import InspectorError, RecipeError
-    from inspector.params import build_params
-
     quiet = bool(getattr(args, "quiet", False))
     driver = None
     written = failed = 0
     try:
         pm = pm or getattr(args, "plugin_manager", None)
         if pm is None:
-            from inspector.manager import create_plugin_manager
-
             pm = create_plugin_manager()
         use, table = driver_table(getattr(args, "recipe", None))
         name = args.driver or use
@@ -241,6 +236,4 @@ def run(args: argparse.Namespace, pm: PluginManager | None = None) -> int:
 
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
-    from inspector.registry import CommandSpec
-
     registry.add(CommandSpec("capture", add_parser, run, "live triggers of any driver -> capture folders (replayable)"))

@@ -11,6 +11,7 @@ import numpy as np
 
 from inspector import hookimpl
 from inspector.errors import StageError
+from inspector.kernels.registration import align_reference
 from inspector.params import param
 from inspector.pipeline import InspectionContext
 from inspector.registry import StageRegistry, StageSpec
@@ -25,8 +26,6 @@ class AlignParams:
 
 
 def run_align(ctx: InspectionContext, p: AlignParams) -> InspectionContext:
-    from inspector.kernels.registration import align_reference
-
     recon = ctx.need("reconstruction", "align")
     ref = ctx.need("reference", "align")
     a = align_reference(

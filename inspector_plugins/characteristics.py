@@ -39,6 +39,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from inspector import hookimpl
+from inspector.kernels.bcps import confidence
 from inspector.model import EvaluationSummary
 from inspector.params import param
 from inspector.pipeline import InspectionContext
@@ -67,7 +68,6 @@ def rows(ctx: InspectionContext, p: CharacteristicsParams) -> list[dict[str, Any
     """The characteristics of ``ctx``'s part, as ``result.json`` rows (see the module)."""
     from inspector.characteristics.definitions import SETTINGS_KEY, features_for
     from inspector.characteristics.measure import measure
-    from inspector.kernels.bcps import confidence
 
     chars = tuple(ctx.settings.get(SETTINGS_KEY, ()))
     if not chars:

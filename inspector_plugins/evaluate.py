@@ -32,18 +32,23 @@ on one part makes that part's verdict ``error`` (it could not have been rejected
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from inspector import hookimpl
 from inspector.errors import RecipeError
+from inspector.kernels import bcps as bk
 from inspector.kernels.bcps import confidence
 from inspector.kernels.deviation import cluster_points, deviation_stats
+from inspector.kernels.silhouette import sample_bilinear
 from inspector.model import Defect, DeviationStats, Evaluation, EvaluationSummary, RegionSummary, Rig
 from inspector.params import param
-from inspector.pipeline import InspectionContext
+from inspector.pipeline import InspectionContext, Tolerance
 from inspector.registry import StageRegistry, StageSpec
+
+if TYPE_CHECKING:
+    from inspector.reference import Reference
 
 
 #: Narrowest tolerance limit, in pixel footprints, a verdict can be trusted at: below it,
@@ -112,22 +117,89 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
     tol = ctx.tolerance
     dev = sel.deviation
     n = len(dev)
-    lower = np.full(n, tol.default.lower)
-    upper = np.full(n, tol.default.upper)
-    region = np.full(n, -1)
-    if tol.regions:
-        local = ref.to_reference_frame(sel.points, pose)
-        for k, r in enumerate(tol.regions):
-            inside = r.contains(local)
-            lower[inside], upper[inside], region[inside] = r.band.lower, r.band.upper, k
+    lower, upper, region = _bands(ref, sel.points, pose, tol, n)
     names = [r.name for r in tol.regions]
     health = calibration_health(ctx, p)
     flagged = np.array(health["flagged_index"] if health is not None else [], int)
-    resting: list[tuple[Defect, list[int]]] = []  # (defect, the flagged cameras it rests on)
     missing = dev < lower
     excess = dev > upper
     # Per flagged camera, the points that rest on it (None: no camera flagged).
     leaning = _leaning(ctx, sel, np.flatnonzero(missing | excess), flagged, health) if len(flagged) else None
+    defects, resting, isolated = _clusters(sel, p, missing, excess, leaning, region, names)
+    out = missing | excess
+    stats = _stats(ctx, sel, tol, health, dev, out, region, names, isolated)
+    summary = _summary(tol, dev, out, region, stats["within_tolerance"])
+    verdict, defects, error, unconfirmed = _verdict(ctx, p, health, defects, resting, n)
+    if unconfirmed:
+        stats["unconfirmed_defects"] = unconfirmed
+    return ctx.evolve(evaluation=Evaluation(verdict, stats, tuple(defects), out, summary=summary, error=error))
+
+
+def _bands(ref: Reference, points: np.ndarray, pose: np.ndarray, tol: Tolerance,
+           n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each point's tolerance band: the default one, or that of the last named region
+    (reference frame, ``ref`` placed at ``pose``) that holds it.
+
+    Parameters
+    ----------
+    ref : Reference
+    points : (N, 3) float
+        BCPS points, world mm.
+    pose : (4, 4) float
+        Reference -> world.
+    tol : Tolerance
+    n : int
+        ``N``.
+
+    Returns
+    -------
+    lower, upper : (N,) float
+        The band's limits, mm.
+    region : (N,) int
+        Index of the region in ``tol.regions`` (-1: the default band).
+    """
+    lower = np.full(n, tol.default.lower)
+    upper = np.full(n, tol.default.upper)
+    region = np.full(n, -1)
+    if tol.regions:
+        local = ref.to_reference_frame(points, pose)
+        for k, r in enumerate(tol.regions):
+            inside = r.contains(local)
+            lower[inside], upper[inside], region[inside] = r.band.lower, r.band.upper, k
+    return lower, upper, region
+
+
+def _clusters(sel: Any, p: EvaluateParams, missing: np.ndarray, excess: np.ndarray,
+              leaning: dict[int, np.ndarray] | None, region: np.ndarray,
+              names: list[str]) -> tuple[list[Defect], list[tuple[Defect, list[int]]], int]:
+    """The out-of-tolerance points clustered (``cluster_radius_mm``) into defects.
+
+    Parameters
+    ----------
+    sel : BcpsSelection
+        The points (N, 3) mm, their deviations (N,) mm and cameras (N,).
+    missing, excess : (N,) bool
+        Below / above their band.
+    leaning : dict, optional
+        Per flagged camera, (N,) bool: the points that rest on it (None: no camera flagged).
+    region : (N,) int
+        Each point's region (-1: the default band).
+    names : list of str
+        The regions' names.
+
+    Returns
+    -------
+    defects : list of Defect
+        The clusters that stand (``min_points`` points from ``min_cameras`` cameras) without
+        the points resting on a flagged camera, worst first.
+    resting : list of (Defect, list of int)
+        The clusters that stand only with them, and the flagged cameras they rest on, worst
+        first.
+    isolated : int
+        Out-of-tolerance points in clusters that do not stand.
+    """
+    dev = sel.deviation
+    resting: list[tuple[Defect, list[int]]] = []  # (defect, the flagged cameras it rests on)
     defects: list[Defect] = []
     isolated = 0
     for kind, flag in (("missing", missing), ("excess", excess)):
@@ -152,7 +224,28 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
                 resting.append((_defect(kind, members, sel.points, dev, region, names), sorted(on)))
     defects.sort(key=lambda d: -abs(d.worst_mm))
     resting.sort(key=lambda dc: -abs(dc[0].worst_mm))
-    out = missing | excess
+    return defects, resting, isolated
+
+
+def _stats(ctx: InspectionContext, sel: Any, tol: Tolerance, health: dict[str, Any] | None, dev: np.ndarray, out: np.ndarray,
+           region: np.ndarray, names: list[str], isolated: int) -> dict[str, Any]:
+    """The evaluation's ``stats`` (result.json): deviations, tolerance, footprint and its
+    capability warning, calibration health, confidence and per-region statistics.
+
+    Parameters
+    ----------
+    dev : (N,) float
+        Deviations, mm.
+    out : (N,) bool
+        Out of tolerance.
+    region : (N,) int
+        Each point's region (-1: the default band).
+    names : list of str
+        The regions' names.
+    isolated : int
+        Out-of-tolerance points in clusters that do not stand.
+    """
+    n = len(dev)
     stats = {
         "n_points": int(n),
         "deviation_mm": deviation_stats(dev),
@@ -192,23 +285,49 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
             name: {"n_points": int((region == k).sum()), "deviation_mm": deviation_stats(dev[region == k])}
             for k, name in enumerate(names)
         }
-    # The typed contract (what result.json's summary keys, the history and the CSV read):
-    # the default band's points first, then each named region's.
+    return stats
+
+
+def _summary(tol: Tolerance, dev: np.ndarray, out: np.ndarray, region: np.ndarray, within: float) -> EvaluationSummary:
+    """The typed contract (what result.json's summary keys, the history and the CSV read):
+    the default band's points first, then each named region's.
+
+    Parameters
+    ----------
+    dev : (N,) float
+        Deviations, mm.
+    out : (N,) bool
+        Out of tolerance.
+    region : (N,) int
+        Each point's region (-1: the default band).
+    within : float
+        Fraction of the points within tolerance (``stats.within_tolerance``).
+    """
+    n = len(dev)
     bands = [("default", tol.default)] + [(r.name, r.band) for r in tol.regions]
     regions = tuple(
         RegionSummary(name, band.lower, band.upper, int((region == k - 1).sum()), int(out[region == k - 1].sum()),
                       DeviationStats.of(dev[region == k - 1]))
         for k, (name, band) in enumerate(bands)
     )
-    summary = EvaluationSummary(
+    return EvaluationSummary(
         n_points=int(n),
         deviation_mm=DeviationStats.of(dev),
         tolerance_mm=(tol.default.lower, tol.default.upper),
-        within_tolerance=stats["within_tolerance"],
+        within_tolerance=within,
         out_of_tolerance_points=int(out.sum()),
         regions=regions,
         point_region=region + 1,
     )
+
+
+def _verdict(ctx: InspectionContext, p: EvaluateParams, health: dict[str, Any] | None, defects: list[Defect],
+             resting: list[tuple[Defect, list[int]]],
+             n: int) -> tuple[str, list[Defect], str | None, list[dict[str, Any]]]:
+    """The verdict (``pass``, ``fail`` or ``error``), the defects it stands on, the error and
+    the unconfirmed defects (``stats.unconfirmed_defects``): defects on a turn the images do
+    not fix (:func:`_unconfirmed`), or resting on a flagged camera, make no fail; a pass with
+    fewer than ``min_points`` points (``n``) is an error."""
     verdict = "fail" if defects else "pass"
     error = _unconfirmed(ctx, defects)
     unconfirmed: list[dict[str, Any]] = []
@@ -229,9 +348,7 @@ def evaluate(ctx: InspectionContext, p: EvaluateParams) -> InspectionContext:
         # Not a pass: no defect of this part could have reached min_points.
         verdict, error = "error", (f"min_points = {p.min_points} is more than the {n} points measured on this part: "
                                    "no defect could reject it; lower min_points")
-    if unconfirmed:
-        stats["unconfirmed_defects"] = unconfirmed
-    return ctx.evolve(evaluation=Evaluation(verdict, stats, tuple(defects), out, summary=summary, error=error))
+    return verdict, defects, error, unconfirmed
 
 
 def _leaning(ctx: InspectionContext, sel: Any, idx: np.ndarray, flagged: np.ndarray,
@@ -323,8 +440,6 @@ def _camera_reason(health: dict[str, Any] | None, resting: list[tuple[Defect, li
 def _outward_normals(soft: np.ndarray, uv: np.ndarray) -> np.ndarray:
     """Outward unit normals (M, 2) of the silhouette at contour points ``uv`` (M, 2): minus
     the coverage's gradient (central differences of bilinear samples one pixel apart)."""
-    from inspector.kernels.silhouette import sample_bilinear
-
     u, v = uv[:, 0], uv[:, 1]
     g = np.stack([sample_bilinear(soft, u + 1.0, v) - sample_bilinear(soft, u - 1.0, v),
                   sample_bilinear(soft, u, v + 1.0) - sample_bilinear(soft, u, v - 1.0)], axis=1)
@@ -344,7 +459,6 @@ def calibration_health(ctx: InspectionContext, p: EvaluateParams) -> dict[str, A
     across the reconstruction's bounds (with the margin of the bcps stage's ray ranges): a
     contour ray's smallest distance along its whole length is its graze.
     """
-    from inspector.kernels import bcps as bk
     from inspector.kernels.health import MIN_RAYS, flagged_cameras, silhouette_residuals
 
     rig = ctx.capture.rig

@@ -31,29 +31,30 @@ and the spool's delete), it is stored once.
 Every ``inspections`` row is hash-chained (:mod:`inspector.ledger`: its ``chain`` column is the
 SHA-256 of the previous row's ``chain`` and its own content, its defects included);
 ``inspector history OUTDIR --verify`` names the first row changed or removed (exit 1).
+
+The ``inspector history`` command is :mod:`inspector_plugins.history_command` (registered
+here), its charts :mod:`inspector_plugins.history_charts` (their functions imported here too).
 """
 
 from __future__ import annotations
 
-import json
 import os
 import queue
 import sqlite3
 import sys
 import threading
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from inspector import hookimpl
-from inspector import ledger
+from inspector import hookimpl, ledger
 from inspector.errors import InputError
+from inspector.history_store import HISTORY_FILE, connect, default_cell, record, spooled, spooled_batch
 from inspector.model import InspectionResult
 from inspector.params import param
-from inspector.registry import CommandRegistry, SettingsRegistry
-from inspector.history_store import HISTORY_FILE, connect, default_cell, read_history, record, spooled, spooled_batch
+from inspector.registry import CommandRegistry, CommandSpec, SettingsRegistry
+from inspector_plugins.history_charts import draw_cameras, draw_history, plot_cameras, plot_history, tally
 from inspector_plugins.history_plant import PlantDatabase, PlantUnavailable, check_url, mask_url
 
 if TYPE_CHECKING:
@@ -434,224 +435,6 @@ def inspector_on_run_end(recipe: Recipe, outdir: Path, summary: RunSummary) -> N
                   f"{Path(outdir) / HISTORY_FILE} (sent by the next run, or by inspector history OUTDIR --send)")
 
 
-# --------------------------------------------------------------------------- inspector history
-
-
-def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("history", help="list the inspections recorded in OUTDIR/history.sqlite or in the plant "
-                                              "database, and the yield")
-    p.add_argument("outdir", metavar="OUTDIR", nargs="?",
-                   help="an inspector run --out folder (none: the plant database, --url or $" + URL_ENV + ")")
-    p.add_argument("--url", metavar="URL", help="the plant database, postgresql://USER@HOST[:PORT]/DATABASE (default: "
-                                                "--recipe's [plugins.history] url, else $" + URL_ENV
-                                                + "; a password is better in $PGPASSWORD or ~/.pgpass)")
-    p.add_argument("--recipe", metavar="RECIPE", help="take the plant database from this recipe's [plugins.history] url "
-                                                      "(as the run did) when --url is not given")
-    p.add_argument("--cell", metavar="NAME", help="only the inspections of this cell")
-    p.add_argument("--send", action="store_true", help="send OUTDIR's spooled inspections to the plant database now")
-    p.add_argument("--verify", action="store_true", help="check OUTDIR's hash chain: name the first inspection changed "
-                                                         "or removed since it was recorded (exit 1), else exit 0")
-    p.add_argument("--last", type=int, metavar="N", help="only the last N inspections")
-    p.add_argument("--json", action="store_true", help="the rows as JSON")
-    p.add_argument("--plot", metavar="PNG", help="also draw the trend: each part's deviation range against its tolerance")
-    p.add_argument("--cameras", metavar="PNG", help="also draw the calibration health: how far each camera was off (px) "
-                                                    "in each inspection, against the flagging threshold")
-    p.add_argument("--characteristics", nargs="?", const="", metavar="PNG",
-                   help="each characteristic over the parts: n, mean, s, Cp, Cpk, out of tolerance, Cg, Cgk; with PNG "
-                        "also its individuals control chart with the tolerance band")
-    p.add_argument("--shift", nargs="?", type=int, const=1, metavar="N",
-                   help="the current shift's counters (and the N-1 before it): yield, worst regions, errors by reason")
-    p.add_argument("--config", metavar="TOML", help="the cell's settings for --shift ([shifts]; default cell.toml in "
-                                                    "$INSPECTOR_CONFIG_DIR or ~/.config/inspector when present)")
-    p.add_argument("--pdf", metavar="FILE", help="with --shift: also the shift report as a PDF, one A4 page per shift")
-    p.add_argument("--lang", metavar="LANG", help="with --shift: the language of its lines and PDF: en, de or es "
-                                                  "(default: $INSPECTOR_LANG, else en; never the system locale)")
-
-
-def plot_history(rows: list[dict[str, Any]], out: Path) -> Path:
-    """A trend picture of ``rows`` (:func:`read_history`), drawn by :func:`draw_history`,
-    written to ``out`` (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(12, 4.5), dpi=110)
-    draw_history(ax, rows)
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
-    return out
-
-
-def plot_cameras(rows: list[dict[str, Any]], out: Path) -> Path:
-    """The calibration health of ``rows`` (:func:`read_history`), drawn by
-    :func:`draw_cameras`, written to ``out`` (PNG)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(12, 4.5), dpi=110)
-    draw_cameras(ax, rows)
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
-    return out
-
-
-def _calibration(row: Mapping[str, Any]) -> dict[str, Any] | None:
-    """A row's ``calibration_json`` read (None: not checked, or not readable)."""
-    raw = row.get("calibration_json")
-    if not raw:
-        return None
-    try:
-        doc = json.loads(raw) if isinstance(raw, str) else raw
-    except ValueError:
-        return None
-    return doc if isinstance(doc, dict) and isinstance(doc.get("off_px"), dict) else None
-
-
-def draw_cameras(ax: Any, rows: list[dict[str, Any]]) -> str:
-    """Draw each camera's calibration health over ``rows`` on the matplotlib axes ``ax``: per
-    camera a line of how far it was off (px, ``stats.calibration`` ``off_px``) in each
-    inspection, in order, a flagged inspection as a ring, and the threshold as a dashed
-    line. Inspections without the figures (errors, older rows) are gaps. Returns the title."""
-    docs = [_calibration(r) for r in rows]
-    names = sorted({n for d in docs if d is not None for n in d["off_px"]})
-    nan = float("nan")
-    x = list(range(len(rows)))
-    worst: dict[str, float] = {}
-    cmap = _camera_colours(len(names))
-    for k, name in enumerate(names):
-        y = [nan if d is None or d["off_px"].get(name) is None else float(d["off_px"][name]) for d in docs]
-        worst[name] = max((v for v in y if v == v), default=nan)
-        ax.plot(x, y, "-", color=cmap[k], lw=1.2, marker=".", ms=4, label=name)
-        flagged = [(i, v) for i, (d, v) in enumerate(zip(docs, y)) if d is not None and name in (d.get("flagged") or [])]
-        if flagged:
-            ax.plot([i for i, _ in flagged], [v for _, v in flagged], "o", mfc="none", mec="#c01010", ms=10, mew=2)
-    limit = [nan if d is None or d.get("threshold_px") is None else float(d["threshold_px"]) for d in docs]
-    if any(v == v for v in limit):
-        ax.step(x, limit, where="mid", color="#c01010", ls="--", lw=1.2, label="threshold")
-    from matplotlib.ticker import MaxNLocator
-
-    ax.set_xlim(-0.5, max(len(rows), 1) - 0.5)
-    ax.set_ylim(bottom=0.0)
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
-    ax.set_xlabel("inspection (oldest first)")
-    ax.set_ylabel("camera off by, px")
-    if names:
-        ax.legend(loc="upper left", fontsize=7, ncol=min(len(names) + 1, 9))
-    flagged_rows = sum(1 for d in docs if d is not None and d.get("flagged"))
-    checked = sum(1 for d in docs if d is not None)
-    top = max(worst, key=lambda n: worst[n] if worst[n] == worst[n] else -1.0) if worst else None
-    most = f"; most off: {top} {worst[top]:.2f} px" if top is not None and worst[top] == worst[top] else ""
-    title = f"calibration health: {checked} of {len(rows)} inspections checked, {flagged_rows} with a camera flagged{most}"
-    ax.set_title(title, fontsize=11)
-    if len(rows) <= 30:
-        ax.set_xticks(range(len(rows)), [r["capture"][:14] for r in rows], rotation=60, ha="right", fontsize=7)
-    return title
-
-
-def _camera_colours(n: int) -> list[Any]:
-    """``n`` distinguishable line colours (matplotlib's tab20, then repeated)."""
-    import matplotlib
-
-    cmap = matplotlib.colormaps["tab20"]
-    return [cmap(k % 20) for k in range(n)]
-
-
-#: Verdict colours of the trend (the GUI's history strip uses the same).
-VERDICT_COLOURS = {"pass": "#2e8b2e", "fail": "#c01010", "error": "#888888"}
-
-
-def tally(rows: list[dict[str, Any]]) -> tuple[dict[str, int], float | None]:
-    """Inspections per verdict (pass, fail, error) and the yield: the passed share of the
-    parts judged (pass or fail); None when none was judged."""
-    n = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "fail", "error")}
-    judged = n["pass"] + n["fail"]
-    return n, (n["pass"] / judged if judged else None)
-
-
-def draw_history(ax: Any, rows: list[dict[str, Any]], *, labels: bool = True) -> str:
-    """Draw the trend of ``rows`` on the matplotlib axes ``ax``: per inspection, in order, the
-    range of its BCPS deviations (mm) as a bar, green for a pass and red for a fail, its
-    worst defect as a dot, errors as grey marks on the zero line, and the tolerance band.
-    Returns the title (counts and yield). ``inspector history --plot`` and the GUI's history
-    strip both draw with this function, so they show the same data and limits."""
-    colour = VERDICT_COLOURS
-    for k, r in enumerate(rows):
-        c = colour.get(r["verdict"], "#888888")
-        if r["verdict"] == "error" or r["deviation_min_mm"] is None:
-            ax.plot([k], [0.0], marker="x", color=c, ms=7, mew=2)
-            continue
-        ax.vlines(k, r["deviation_min_mm"], r["deviation_max_mm"], color=c, lw=3)
-        if r["worst_mm"] is not None:
-            ax.plot([k], [r["worst_mm"]], "o", color=c, ms=5)
-    nan = float("nan")  # an error row has no tolerance: a gap in the band
-    lo = [nan if r["tolerance_lower_mm"] is None else r["tolerance_lower_mm"] for r in rows]
-    hi = [nan if r["tolerance_upper_mm"] is None else r["tolerance_upper_mm"] for r in rows]
-    if any(v == v for v in lo + hi):
-        x = list(range(len(rows)))
-        ax.step(x, lo, where="mid", color="k", ls="--", lw=1, label="tolerance")
-        ax.step(x, hi, where="mid", color="k", ls="--", lw=1)
-        ax.legend(loc="upper right", fontsize=8)
-    ax.axhline(0.0, color="#cccccc", lw=0.8, zorder=0)
-    from matplotlib.ticker import MaxNLocator
-
-    ax.set_xlim(-0.5, max(len(rows), 1) - 0.5)
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))  # inspections are counted, not measured
-    if labels:
-        ax.set_xlabel("inspection (oldest first)")
-        ax.set_ylabel("BCPS deviation, mm (negative: missing)")
-    n, share = tally(rows)
-    yld = f"yield {share:.1%}" if share is not None else "no part judged"
-    title = f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}"
-    ax.set_title(title, fontsize=11 if labels else 9)
-    if labels and len(rows) <= 30:
-        ax.set_xticks(range(len(rows)), [r["capture"][:14] for r in rows], rotation=60, ha="right", fontsize=7)
-    return title
-
-
-def _fmt(x: Any, spec: str) -> str:
-    return "-" if x is None else format(x, spec)
-
-
-def _url_of(args) -> tuple[str | None, str]:
-    """(the plant database's URL, where it came from) of ``inspector history``'s arguments, in
-    this order: ``--url``; the ``--recipe``'s ``[plugins.history] url`` (what the run used);
-    ``$INSPECTOR_HISTORY_URL``. Raises RecipeError (one line naming the recipe) for a recipe
-    that cannot be read."""
-    if args.url:
-        return args.url, "--url"
-    if getattr(args, "recipe", None):
-        from inspector.recipe import load_recipe
-
-        recipe = load_recipe(args.recipe, args.plugin_manager)
-        settings = recipe.plugins.get("history")
-        if isinstance(settings, HistorySettings) and settings.url:
-            return settings.url, f"{args.recipe}: plugins.history.url"
-    return os.environ.get(URL_ENV, "").strip() or None, URL_ENV
-
-
-def _verify_cmd(outdir: Path) -> int:
-    """``inspector history OUTDIR --verify``: 0 intact, 1 broken, 3 unreadable."""
-    path = outdir / HISTORY_FILE
-    if not path.is_file():
-        print(f"inspector: error: {path}: no history", file=sys.stderr)
-        return 3
-    try:
-        report = verify_history(outdir)
-    except InputError as e:
-        print(f"inspector: error: {e}", file=sys.stderr)
-        return 3
-    if not report.ok:
-        print(f"inspector: error: {path}: {report.summary()}", file=sys.stderr)
-        return 1
-    print(f"{path}: {report.summary()}")
-    return 0
-
-
 def verify_history(outdir: Path) -> ledger.ChainReport:
     """The hash chain of ``outdir``'s inspections checked (:func:`inspector.ledger.verify`,
     each row with its defects). InputError naming the file when it cannot be read."""
@@ -667,136 +450,11 @@ def verify_history(outdir: Path) -> ledger.ChainReport:
         raise InputError(f"{path}: cannot be read ({e})") from None
 
 
-def _send_now(outdir: Path, url: str) -> int:
-    """``inspector history OUTDIR --send``."""
-    plant = PlantDatabase(url, connect_timeout_s=10, application_name="inspector history --send")
-    try:
-        sent = flush_spool(outdir, plant)
-    except PlantUnavailable as e:
-        print(f"inspector: error: {e}; {spooled(outdir)} inspections stay in the spool", file=sys.stderr)
-        return 3
-    finally:
-        plant.close()
-    print(f"sent {sent} spooled inspection{'s' if sent != 1 else ''} to {plant.label}")
-    return 0
-
-
-def run(args) -> int:
-    if args.last is not None and args.last < 1:
-        print(f"inspector: error: --last: expected a number >= 1, got {args.last}", file=sys.stderr)
-        return 2
-    if args.shift is not None:
-        if args.outdir is None:
-            print("inspector: error: --shift: give OUTDIR (its history.sqlite)", file=sys.stderr)
-            return 2
-        from inspector.locale import choose, using
-        from inspector.shift import print_shifts
-
-        try:
-            lang = choose(args.lang)
-        except ValueError as e:
-            print(f"inspector: error: --lang: {e}", file=sys.stderr)
-            return 2
-        with using(lang):
-            return print_shifts(args.outdir, shifts=args.shift, config=args.config, pdf=args.pdf)
-    if args.pdf is not None:
-        print("inspector: error: --pdf: the shift report; give --shift too", file=sys.stderr)
-        return 2
-    if args.verify:
-        if args.outdir is None or args.send or args.url:
-            print("inspector: error: --verify: give OUTDIR only (its history.sqlite is checked)", file=sys.stderr)
-            return 2
-        return _verify_cmd(Path(args.outdir))
-    url, source = _url_of(args)
-    if url is not None and (args.send or args.outdir is None):
-        try:
-            check_url(url)
-        except ValueError as e:
-            print(f"inspector: error: {source}: {str(e).removeprefix('url: ')}", file=sys.stderr)
-            return 2
-    if args.send:
-        if args.outdir is None or url is None:
-            print(f"inspector: error: --send: give OUTDIR and the plant database (--url URL, --recipe RECIPE with "
-                  f"[plugins.history] url, or ${URL_ENV})", file=sys.stderr)
-            return 2
-        if not (Path(args.outdir) / HISTORY_FILE).is_file():
-            print(f"inspector: error: {Path(args.outdir) / HISTORY_FILE}: no history", file=sys.stderr)
-            return 3
-        return _send_now(Path(args.outdir), url)
-    if args.outdir is not None and args.url:
-        print("inspector: error: give OUTDIR (its history.sqlite) or --url (the plant database), not both", file=sys.stderr)
-        return 2
-    plant = args.outdir is None
-    if plant and url is None:
-        print(f"inspector: error: history: give OUTDIR, or the plant database with --url URL or ${URL_ENV}", file=sys.stderr)
-        return 2
-    try:
-        if plant:
-            assert url is not None
-            rows = read_plant(url, last=args.last, cell=args.cell)
-        else:
-            rows = read_history(Path(args.outdir), last=args.last, cell=args.cell)
-    except InputError as e:
-        print(f"inspector: error: {e}", file=sys.stderr)
-        return 3
-    if args.characteristics is not None:
-        return _characteristics_cmd(rows, args.characteristics)
-    for picture, draw in ((args.plot, plot_history), (args.cameras, plot_cameras)):
-        if picture:
-            try:
-                draw(rows, Path(picture))
-            except OSError as e:
-                print(f"inspector: error: {picture}: cannot write ({e.strerror or e})", file=sys.stderr)
-                return 3
-    if args.json:
-        print(json.dumps(rows, indent=1))
-        return 0
-    cell_head = f"{'cell':14s} " if plant else ""
-    print(f"{'inspected at (UTC)':24s} {cell_head}{'capture':24s} {'part id':14s} {'verdict':7s} {'defects':>7s} "
-          f"{'worst mm':>9s} {'s':>6s}")
-    for r in rows:
-        cell = f"{(r['cell'] or '-')[:14]:14s} " if plant else ""
-        print(f"{r['inspected_at'][:23]:24s} {cell}{r['capture'][:24]:24s} {(r['part_id'] or '-')[:14]:14s} "
-              f"{r['verdict'].upper():7s} {r['n_defects']:7d} {_fmt(r['worst_mm'], '+9.3f'):>9s} {_fmt(r['total_s'], '6.2f'):>6s}")
-    n, share = tally(rows)
-    yld = f"yield {share:.1%} of the parts judged" if share is not None else "no part judged"
-    span = f", {rows[0]['inspected_at'][:19]} to {rows[-1]['inspected_at'][:19]}" if rows else ""
-    print(f"{len(rows)} inspections: {n['pass']} pass, {n['fail']} fail, {n['error']} error; {yld}{span}")
-    waiting = 0 if plant else spooled(Path(args.outdir))
-    if waiting:
-        print(f"{waiting} of them wait in the spool for the plant database (sent at the next record, or with --send)")
-    for picture in (args.plot, args.cameras):
-        if picture:
-            print(f"wrote {picture}")
-    return 0
-
-
-def _characteristics_cmd(rows: list[dict[str, Any]], picture: str) -> int:
-    """``--characteristics [PNG]``: the capability table, and the control charts."""
-    from inspector.characteristics.charts import capability_text, parts_rows, plot_charts
-
-    parts = parts_rows(rows)
-    if not parts:
-        print(f"inspector: error: none of the {len(rows)} inspections measured characteristics (a recipe's "
-              "[[characteristics]] and its evaluate.characteristics stage)", file=sys.stderr)
-        return 3
-    for line in capability_text(parts):
-        print(line)
-    print(f"{len(parts)} parts with characteristics of {len(rows)} inspections")
-    if picture:
-        try:
-            plot_charts(parts, Path(picture))
-        except OSError as e:
-            print(f"inspector: error: {picture}: cannot write ({e.strerror or e})", file=sys.stderr)
-            return 3
-        print(f"wrote {picture}")
-    return 0
-
-
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
-    """``inspector history [OUTDIR]``."""
-    from inspector.registry import CommandSpec
+    """``inspector history [OUTDIR]`` (:mod:`inspector_plugins.history_command`)."""
+    # cycle: inspector_plugins.history_command imports inspector_plugins.history (its settings, the plant database)
+    from inspector_plugins.history_command import add_parser, run
 
     registry.add(CommandSpec("history", add_parser, run,
                              "the inspections recorded in OUTDIR/history.sqlite or the plant database, the yield"))

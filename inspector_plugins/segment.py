@@ -392,13 +392,46 @@ def segment_camera(
         keep = (contour[:, 0] >= 1) & (contour[:, 0] <= w - 2) & (contour[:, 1] >= 1) & (contour[:, 1] <= h - 2)
         contour = contour[keep]
     report["window_px"] = window
+    contour = _off_specks(contour, specks, bumps, (y0, y1, x0, x1), m.shape, p, report)
+    report["optics"] = bool(report["background"] in ("image", "model") or report.get("specks_ignored")
+                            or report.get("points_dropped") or window != 2)
+    sil = Silhouette(camera=camera, mask=mask, soft=soft, contour=contour, touches_border=border,
+                     edge_px=SMOOTHED_EDGE_PX if sigma > 0 else 0.0)
+    return sil, report
+
+
+def _off_specks(contour: np.ndarray, specks: np.ndarray | None, bumps: np.ndarray, box: tuple[int, int, int, int],
+               shape: tuple[int, ...], p: SegmentParams, report: dict[str, Any]) -> np.ndarray:
+    """The contour points that do not lie on a speck: of the empty field (within
+    ``speck_margin_px``), or, without one, of the bumps found on the edge (within
+    ``speck_margin_px`` plus :data:`BUMP_ZONE_PX`); ``report`` gets ``edge_specks`` and
+    ``points_dropped``.
+
+    Parameters
+    ----------
+    contour : (M, 2) float
+        Sub-pixel contour points, image px.
+    specks : (H, W) bool or None
+        The empty field's specks.
+    bumps : (K, 2) float
+        Bumps found on the edge, image px.
+    box : (y0, y1, x0, x1)
+        The crop the contour work runs on, image px.
+    shape : (h, w)
+        The crop's shape (the mask's crop).
+
+    Returns
+    -------
+    (M', 2) float
+    """
+    y0, y1, x0, x1 = box
     zone = None
     if specks is not None and report.get("specks") and p.speck_margin_px > 0:
         zone = specks[y0:y1, x0:x1].copy()
     elif len(bumps):
-        zone = np.zeros(m.shape, bool)
-        j = np.clip(np.rint(bumps[:, 0] - x0).astype(np.intp), 0, m.shape[1] - 1)
-        i = np.clip(np.rint(bumps[:, 1] - y0).astype(np.intp), 0, m.shape[0] - 1)
+        zone = np.zeros(shape, bool)
+        j = np.clip(np.rint(bumps[:, 0] - x0).astype(np.intp), 0, shape[1] - 1)
+        i = np.clip(np.rint(bumps[:, 1] - y0).astype(np.intp), 0, shape[0] - 1)
         zone[i, j] = True
         report["edge_specks"] = bk.count_blobs(cv2_dilate(zone, BUMP_ZONE_PX))
     if zone is not None:
@@ -406,11 +439,7 @@ def segment_camera(
         on = sk.near_mask(contour - np.array([x0, y0]), cv2_dilate(zone, r))
         report["points_dropped"] = int(on.sum())
         contour = contour[~on]
-    report["optics"] = bool(report["background"] in ("image", "model") or report.get("specks_ignored")
-                            or report.get("points_dropped") or window != 2)
-    sil = Silhouette(camera=camera, mask=mask, soft=soft, contour=contour, touches_border=border,
-                     edge_px=SMOOTHED_EDGE_PX if sigma > 0 else 0.0)
-    return sil, report
+    return contour
 
 
 def segment_image(

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from inspector import hookimpl
+from inspector.errors import InputError
 from inspector.params import param
 from inspector.registry import DriverRegistry, DriverSpec
 
@@ -84,8 +85,6 @@ def available() -> str:
 
 def open_driver(params: AravisParams):
     """``DriverSpec.open``: discover, map, configure and start every camera."""
-    from inspector.errors import InputError
-
     why = available()
     if why:
         raise InputError(f"aravis: {why}")

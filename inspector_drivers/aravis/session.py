@@ -158,10 +158,10 @@ class AravisSession:
             key = "serial" if cam.match.by == "serial" else "user_id"
             hits = [d for d in devices if d.get(key) == cam.match.value]
             if not hits:
-                seen = sorted({d.get(key, "") for d in devices if d.get(key)})
+                found = sorted({d.get(key, "") for d in devices if d.get(key)})
                 raise InputError(
                     f"{DRIVER}: camera {cam.name}: no device with {cam.match.describe()} "
-                    f"(found: {', '.join(seen) or 'no device'})"
+                    f"(found: {', '.join(found) or 'no device'})"
                 )
             if len(hits) > 1:
                 raise InputError(f"{DRIVER}: camera {cam.name}: {len(hits)} devices with {cam.match.describe()}")
@@ -292,7 +292,8 @@ class AravisSession:
             usable = has("TriggerSoftware") and (not has("TriggerSource") or "Software" in entries("TriggerSource"))
         selectors = entries("TriggerSelector") if has("TriggerSelector") else []
         if has("TriggerMode"):
-            for s in selectors or [None]:
+            each: list[str | None] = [*selectors] or [None]  # None: a device without trigger selectors
+            for s in each:
                 try:
                     if s is not None:
                         camera.set_string("TriggerSelector", s)

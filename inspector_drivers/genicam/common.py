@@ -23,6 +23,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from inspector.capture_folder import BACKGROUND_DIR, RIG_FILE, _decode_png, read_rig
 from inspector.errors import CaptureError, InputError
 from inspector.model import Capture, Rig
 from inspector.registry import Acquisition
@@ -53,8 +54,6 @@ class Session(Protocol):
 
 def load_rig(path: str, driver: str) -> Rig:
     """The rig of ``params.rig`` (``rig.json``, or a capture folder holding one)."""
-    from inspector.capture_folder import RIG_FILE, read_rig
-
     if not path:
         raise InputError(f"{driver}: parameter 'rig' is required (path to a rig.json with the cameras' calibration)")
     p = Path(path).expanduser()
@@ -73,8 +72,6 @@ def load_backgrounds(path: str, rig: Rig, driver: str) -> dict[str, np.ndarray]:
     in the folder that holds ``rig.json`` (``inspector calibrate --background --out FOLDER``),
     attached to every capture so the segment stage flat-fields it. ``{}`` without that folder;
     a camera without its image, or an image that does not fit its camera, is an InputError."""
-    from inspector.capture_folder import BACKGROUND_DIR, _decode_png
-
     p = Path(path).expanduser()
     folder = p if p.is_dir() else p.parent
     d = folder / BACKGROUND_DIR
@@ -193,7 +190,11 @@ class LiveDriver:
             self._index += 1
             n += 1
             name = f"{self.name}-{self._stamp}-{self._index:04d}"
-            yield Acquisition(name, lambda name=name: self.capture(name))
+
+            def load(name: str = name) -> Capture:
+                return self.capture(name)
+
+            yield Acquisition(name, load)
 
     def capture(self, name: str | None = None) -> Capture:
         """Fire one trigger now and return the capture (CaptureError naming the camera)."""

@@ -324,7 +324,9 @@ class HarvesterSession:
         iface.update_device_info_list(self.h.timeout_for_update)
         fresh = [DeviceInfo(module=d, parent=iface) for d in iface.device_info_list]
         others = [i for i in self.h.device_info_list if i.parent is not iface]
-        self.h._device_info_list[:] = others + fresh
+        # harvesters offers no way to refresh one interface's devices: its list (the property
+        # returns the Harvester's own list, not a copy), updated in place
+        self.h.device_info_list[:] = others + fresh
 
     # -- frames -------------------------------------------------------------------------
     def _drain(self, cam: _Camera) -> int:

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from inspector import hookimpl
 from inspector.params import param
 from inspector.registry import Acquisition, DriverRegistry, DriverSpec
+from inspector_drivers.replay import hotfolder
+
 
 @dataclass(frozen=True)
 class ReplayParams:
@@ -49,13 +51,11 @@ def inspector_register_drivers(registry: DriverRegistry) -> None:
             doc="Capture folders on disk (rig.json, images/, background/, capture.json, truth/)",
         )
     )
-    from inspector_drivers.replay.hotfolder import HotFolderDriver, HotFolderParams
-
     registry.add(
         DriverSpec(
             name="hotfolder",
-            open=HotFolderDriver,
-            params=HotFolderParams,
+            open=hotfolder.HotFolderDriver,  # looked up when registered (a test may replace it)
+            params=hotfolder.HotFolderParams,
             doc="Hot folder: capture folders another program drops in an inbox, inspected once complete, then moved to done/",
         )
     )

@@ -353,8 +353,7 @@ class HotFolderDriver:
         self._file_away(folder)
 
     def acquire(self) -> Iterator[Acquisition]:
-        from inspector.capture_folder import named_acquisition
-        from inspector.capture_folder import read_capture
+        from inspector.capture_folder import named_acquisition, read_capture
 
         n = 0
         last_new = self.clock()

@@ -11,8 +11,10 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from inspector import hookimpl
+from inspector.model import Capture
 from inspector.registry import Acquisition, CommandRegistry, DriverRegistry, DriverSpec
-from inspector_drivers.sim.simulate import SimParams
+from inspector_drivers.sim.commands import COMMANDS
+from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
 
 @dataclass
@@ -22,12 +24,14 @@ class SimDriver:
     params: SimParams
 
     def acquire(self) -> Iterator[Acquisition]:
-        from inspector_drivers.sim.simulate import sim_rig, simulate
-
         rig = sim_rig(self.params)
         for i in range(self.params.count):
             name = f"{self.params.part}-s{self.params.seed + i:04d}"
-            yield Acquisition(name, lambda i=i, name=name: simulate(self.params, i, rig, name=name))
+
+            def load(i: int = i, name: str = name) -> Capture:
+                return simulate(self.params, i, rig, name=name)
+
+            yield Acquisition(name, load)
 
     def close(self) -> None:
         pass
@@ -47,7 +51,5 @@ def inspector_register_drivers(registry: DriverRegistry) -> None:
 
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
-    from inspector_drivers.sim.commands import COMMANDS
-
     for spec in COMMANDS:
         registry.add(spec)

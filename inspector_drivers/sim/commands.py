@@ -11,7 +11,9 @@ from pathlib import Path
 from typing import Any
 
 from inspector.errors import RecipeError
+from inspector.params import build_params, describe_params
 from inspector.registry import CommandSpec
+from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
 __all__ = ["COMMANDS", "add_simulate_parser", "simulate_command"]
 
@@ -40,8 +42,6 @@ def _parse_bump(text: str) -> dict[str, Any]:
 
 def _add_param_options(parser: argparse.ArgumentParser, cls: type, skip: set[str]) -> None:
     """One ``--option`` per parameter of ``cls`` (types and docs from the dataclass)."""
-    from inspector.params import describe_params
-
     for d in describe_params(cls):
         if d["name"] in skip:
             continue
@@ -58,8 +58,6 @@ def _add_param_options(parser: argparse.ArgumentParser, cls: type, skip: set[str
 
 
 def add_simulate_parser(sub: argparse._SubParsersAction[Any]) -> None:
-    from inspector_drivers.sim.simulate import SimParams
-
     s = sub.add_parser("simulate", help="write simulated capture folders")
     s.add_argument("--out", required=True, help="folder that receives one capture folder per capture")
     s.add_argument("--bump", action="append", metavar="X,Y,Z,R[,KIND]",
@@ -83,9 +81,7 @@ def _flag(name: str) -> str:
 
 
 def simulate_command(args: argparse.Namespace) -> int:
-    from inspector.params import build_params, describe_params
     from inspector.capture_folder import save_capture
-    from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
 
     table = {d["name"]: getattr(args, d["name"]) for d in describe_params(SimParams)
              if getattr(args, d["name"], None) is not None}
@@ -110,9 +106,7 @@ def simulate_command(args: argparse.Namespace) -> int:
 def _simulate_target(args: argparse.Namespace, table: dict[str, Any]) -> int:
     """``simulate --target``: one capture folder per pose of the calibration target."""
     from inspector.calibration.target import load_target
-    from inspector.params import build_params
     from inspector.capture_folder import read_rig, save_capture
-    from inspector_drivers.sim.simulate import SimParams, sim_rig
     from inspector_drivers.sim.target import simulate_target
 
     for name in table:

@@ -252,6 +252,148 @@ class _Normaliser:
         return lerp(self.gx), lerp(self.gy)
 
 
+def _band_lattice(caster: _Caster, norm: _Normaliser, centre: np.ndarray, band: np.ndarray, br: np.ndarray,
+                  bc: np.ndarray, c0: int, r0: int, s: int) -> np.ndarray:
+    """Step 4: the lattice of each band pixel, points ``k/s`` (``k = 0..s``) from its top-left
+    corner, inside or not; the last row and column are the neighbours' first (their centre
+    when a neighbour is not in the band).
+
+    Parameters
+    ----------
+    centre : (h, w) bool
+        Centre pass over the region (pixel centres hit).
+    band : (h, w) bool
+        Band pixels (never on the region's outermost ring).
+    br, bc : (nb,) int
+        Rows and columns of the band pixels in the region.
+    c0, r0 : int
+        The region's first column and row, image px.
+    s : int
+        Supersampling.
+
+    Returns
+    -------
+    (nb, s + 1, s + 1) bool
+        ``[pixel, row l, col k]``.
+    """
+    nb = br.size
+    off = np.arange(s) / s - 0.5
+    pu = (c0 + bc)[:, None, None] + off[None, None, :]  # (nb, 1, s)
+    pv = (r0 + br)[:, None, None] + off[None, :, None]  # (nb, s, 1)
+    pu, pv = np.broadcast_arrays(pu, pv)
+    S = caster.hits(*norm(pu, pv))  # (nb, s, s) [row l, col k]
+    index = np.full(band.shape, -1, np.int64)
+    index[br, bc] = np.arange(nb)
+
+    def neighbour(dr: int, dc: int):
+        j = index[br + dr, bc + dc]
+        return j, centre[br + dr, bc + dc]
+
+    L = np.empty((nb, s + 1, s + 1), bool)
+    L[:, :s, :s] = S
+    j, cv = neighbour(0, 1)  # right column
+    L[:, :s, s] = np.where((j >= 0)[:, None], S[np.maximum(j, 0), :, 0], cv[:, None])
+    j, cv = neighbour(1, 0)  # bottom row
+    L[:, s, :s] = np.where((j >= 0)[:, None], S[np.maximum(j, 0), 0, :], cv[:, None])
+    j, cv = neighbour(1, 1)  # bottom-right corner
+    L[:, s, s] = np.where(j >= 0, S[np.maximum(j, 0), 0, 0], cv)
+    return L
+
+
+def _crossings(caster: _Caster, norm: _Normaliser, L: np.ndarray, br: np.ndarray, bc: np.ndarray, c0: int, r0: int,
+               s: int, refine: int) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5: where the surface crosses each lattice side whose ends differ, by ``refine``
+    bisections along the side (0.5 on the sides it does not cross).
+
+    Parameters
+    ----------
+    L : (nb, s + 1, s + 1) bool
+        The band pixels' lattices (:func:`_band_lattice`).
+    br, bc : (nb,) int
+        Rows and columns of the band pixels in the region.
+    c0, r0 : int
+        The region's first column and row, image px.
+    s : int
+        Supersampling.
+    refine : int
+        Bisection steps.
+
+    Returns
+    -------
+    lam_h : (nb, s + 1, s) float
+        On the horizontal sides, the crossing's position from the left end, in sides.
+    lam_v : (nb, s, s + 1) float
+        On the vertical sides, from the top end.
+    """
+    h_cross = L[:, :, :-1] != L[:, :, 1:]
+    v_cross = L[:, :-1, :] != L[:, 1:, :]
+    lam_h = np.full(h_cross.shape, 0.5)
+    lam_v = np.full(v_cross.shape, 0.5)
+    hi_ = np.nonzero(h_cross)
+    vi_ = np.nonzero(v_cross)
+    lat = np.arange(s + 1) / s - 0.5
+    # start points, step vectors and start states of all crossing sides
+    su = np.concatenate([(c0 + bc)[hi_[0]] + lat[hi_[2]], (c0 + bc)[vi_[0]] + lat[vi_[2]]])
+    sv = np.concatenate([(r0 + br)[hi_[0]] + lat[hi_[1]], (r0 + br)[vi_[0]] + lat[vi_[1]]])
+    du = np.concatenate([np.full(hi_[0].size, 1.0 / s), np.zeros(vi_[0].size)])
+    dv = np.concatenate([np.zeros(hi_[0].size), np.full(vi_[0].size, 1.0 / s)])
+    a_state = np.concatenate([L[:, :, :-1][hi_], L[:, :-1, :][vi_]])
+    if su.size:
+        x0, y0 = norm(su, sv)
+        x1, y1 = norm(su + du, sv + dv)
+        lo = np.zeros(su.size)
+        hi = np.ones(su.size)
+        for _ in range(int(refine)):
+            mid = 0.5 * (lo + hi)
+            # the pixel -> normalised map is affine (no distortion) or smooth over
+            # 1/s px: interpolate linearly along the side
+            hit = caster.hits(x0 + mid * (x1 - x0), y0 + mid * (y1 - y0))
+            same = hit == a_state
+            lo = np.where(same, mid, lo)
+            hi = np.where(same, hi, mid)
+        lam = 0.5 * (lo + hi)
+        nh = hi_[0].size
+        lam_h[hi_] = lam[:nh]
+        lam_v[vi_] = lam[nh:]
+    return lam_h, lam_v
+
+
+def _lattice_coverage(L: np.ndarray, lam_h: np.ndarray, lam_v: np.ndarray, s: int) -> np.ndarray:
+    """Step 6: each band pixel's coverage, the areas of its ``s x s`` sub-cells (whole when
+    all 4 corners are inside, :func:`_cell_areas` when mixed) over ``s * s``.
+
+    Parameters
+    ----------
+    L : (nb, s + 1, s + 1) bool
+        The lattices (:func:`_band_lattice`).
+    lam_h, lam_v : (nb, s + 1, s), (nb, s, s + 1) float
+        The crossings (:func:`_crossings`).
+
+    Returns
+    -------
+    (nb,) float
+        Coverage in [0, 1].
+    """
+    c00 = L[:, :-1, :-1]
+    c10 = L[:, :-1, 1:]
+    c11 = L[:, 1:, 1:]
+    c01 = L[:, 1:, :-1]
+    n_in = c00.astype(np.int8) + c10 + c11 + c01
+    area = (n_in == 4).astype(float)
+    mixed = (n_in > 0) & (n_in < 4)
+    mi = np.nonzero(mixed)
+    if mi[0].size:
+        p, l, k = mi
+        area[mi] = _cell_areas(
+            c00[mi], c10[mi], c11[mi], c01[mi],
+            lam_h[p, l, k],  # bottom: horizontal side at row l
+            lam_v[p, l, k + 1],  # right: vertical side at col k+1
+            lam_h[p, l + 1, k],  # top: horizontal side at row l+1
+            lam_v[p, l, k],  # left: vertical side at col k
+        )
+    return area.sum(axis=(1, 2)) / (s * s)
+
+
 def render_camera(
     scene, cam: Camera, vertices: np.ndarray, *, supersample: int = 8, refine: int = 10
 ) -> np.ndarray:
@@ -278,81 +420,10 @@ def render_camera(
     band = _dilate(edge, 2)
     band[0, :] = band[-1, :] = band[:, 0] = band[:, -1] = False
     br, bc = np.nonzero(band)
-    nb = br.size
-    if nb:
-        # 4. lattice: points k/s (k = 0..s-1) from the pixel's top-left corner
-        off = np.arange(s) / s - 0.5
-        pu = (c0 + bc)[:, None, None] + off[None, None, :]  # (nb, 1, s)
-        pv = (r0 + br)[:, None, None] + off[None, :, None]  # (nb, s, 1)
-        pu, pv = np.broadcast_arrays(pu, pv)
-        S = caster.hits(*norm(pu, pv))  # (nb, s, s) [row l, col k]
-        index = np.full(band.shape, -1, np.int64)
-        index[br, bc] = np.arange(nb)
-
-        def neighbour(dr: int, dc: int):
-            j = index[br + dr, bc + dc]
-            return j, centre[br + dr, bc + dc]
-
-        L = np.empty((nb, s + 1, s + 1), bool)
-        L[:, :s, :s] = S
-        j, cv = neighbour(0, 1)  # right column
-        L[:, :s, s] = np.where((j >= 0)[:, None], S[np.maximum(j, 0), :, 0], cv[:, None])
-        j, cv = neighbour(1, 0)  # bottom row
-        L[:, s, :s] = np.where((j >= 0)[:, None], S[np.maximum(j, 0), 0, :], cv[:, None])
-        j, cv = neighbour(1, 1)  # bottom-right corner
-        L[:, s, s] = np.where(j >= 0, S[np.maximum(j, 0), 0, 0], cv)
-
-        # 5. crossings on horizontal sides (nb, s+1, s) and vertical sides (nb, s, s+1)
-        h_cross = L[:, :, :-1] != L[:, :, 1:]
-        v_cross = L[:, :-1, :] != L[:, 1:, :]
-        lam_h = np.full(h_cross.shape, 0.5)
-        lam_v = np.full(v_cross.shape, 0.5)
-        hi_ = np.nonzero(h_cross)
-        vi_ = np.nonzero(v_cross)
-        lat = np.arange(s + 1) / s - 0.5
-        # start points, step vectors and start states of all crossing sides
-        su = np.concatenate([(c0 + bc)[hi_[0]] + lat[hi_[2]], (c0 + bc)[vi_[0]] + lat[vi_[2]]])
-        sv = np.concatenate([(r0 + br)[hi_[0]] + lat[hi_[1]], (r0 + br)[vi_[0]] + lat[vi_[1]]])
-        du = np.concatenate([np.full(hi_[0].size, 1.0 / s), np.zeros(vi_[0].size)])
-        dv = np.concatenate([np.zeros(hi_[0].size), np.full(vi_[0].size, 1.0 / s)])
-        a_state = np.concatenate([L[:, :, :-1][hi_], L[:, :-1, :][vi_]])
-        if su.size:
-            x0, y0 = norm(su, sv)
-            x1, y1 = norm(su + du, sv + dv)
-            lo = np.zeros(su.size)
-            hi = np.ones(su.size)
-            for _ in range(int(refine)):
-                mid = 0.5 * (lo + hi)
-                # the pixel -> normalised map is affine (no distortion) or smooth over
-                # 1/s px: interpolate linearly along the side
-                hit = caster.hits(x0 + mid * (x1 - x0), y0 + mid * (y1 - y0))
-                same = hit == a_state
-                lo = np.where(same, mid, lo)
-                hi = np.where(same, hi, mid)
-            lam = 0.5 * (lo + hi)
-            nh = hi_[0].size
-            lam_h[hi_] = lam[:nh]
-            lam_v[vi_] = lam[nh:]
-
-        # 6. areas of sub-cells
-        c00 = L[:, :-1, :-1]
-        c10 = L[:, :-1, 1:]
-        c11 = L[:, 1:, 1:]
-        c01 = L[:, 1:, :-1]
-        n_in = c00.astype(np.int8) + c10 + c11 + c01
-        area = (n_in == 4).astype(float)
-        mixed = (n_in > 0) & (n_in < 4)
-        mi = np.nonzero(mixed)
-        if mi[0].size:
-            p, l, k = mi
-            area[mi] = _cell_areas(
-                c00[mi], c10[mi], c11[mi], c01[mi],
-                lam_h[p, l, k],  # bottom: horizontal side at row l
-                lam_v[p, l, k + 1],  # right: vertical side at col k+1
-                lam_h[p, l + 1, k],  # top: horizontal side at row l+1
-                lam_v[p, l, k],  # left: vertical side at col k
-            )
-        cov[br, bc] = area.sum(axis=(1, 2)) / (s * s)
+    if br.size:
+        L = _band_lattice(caster, norm, centre, band, br, bc, c0, r0, s)
+        lam_h, lam_v = _crossings(caster, norm, L, br, bc, c0, r0, s, refine)
+        cov[br, bc] = _lattice_coverage(L, lam_h, lam_v, s)
 
     # copy the in-image part
     ic0, ir0 = max(c0, 0), max(r0, 0)
@@ -408,6 +479,7 @@ def to_image(
     in 8-bit grey levels; with ``bit_depth=16`` they are scaled by 257 and the result is
     ``uint16``. A bright object is obtained by swapping ``background`` and ``foreground``.
     """
+    dtype: type[np.uint8] | type[np.uint16]
     if bit_depth == 8:
         dtype, scale = np.uint8, 1.0
     elif bit_depth == 16:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
-from inspector.errors import RecipeError
+from inspector.errors import RecipeError, ReferenceMeshError
 from inspector.model import Capture, Rig, Truth
 from inspector.params import param
 
@@ -126,7 +126,6 @@ def random_pose(rng: np.random.Generator, offset_mm: float, random_rotation: boo
 
 
 def _true_part(p: SimParams, rng: np.random.Generator, index: int = 0) -> tuple[Any, list[dict[str, Any]]]:
-    from inspector.errors import ReferenceMeshError
     from inspector.parts import Bump, apply_defects, load_reference, part_names, random_bumps
 
     spec = p.part if (p.part.startswith("builtin:") or "." in p.part or "/" in p.part) else f"builtin:{p.part}"
@@ -159,7 +158,8 @@ def _through_optics(cov: np.ndarray, p: SimParams, optics: Optics, camera_index:
     and the camera's vignetting x dust gain (H, W) float32 (reused for its background image)."""
     from inspector_drivers.sim.optics import apply_optics, field_gain
 
-    gain = field_gain(optics, *cov.shape, camera_index)
+    height, width = cov.shape
+    gain = field_gain(optics, height, width, camera_index)
     grey = np.float32(p.background) + np.float32(p.foreground - p.background) * np.asarray(cov, np.float32)
     return _levels_to_coverage(apply_optics(grey, optics, camera_index, gain), p), gain
 

@@ -68,6 +68,7 @@ import numpy as np
 
 from inspector.kernels import camera as camk
 from inspector.model import Camera, Capture, Rig, Truth
+from inspector_drivers.sim.simulate import random_pose
 
 if TYPE_CHECKING:  # pragma: no cover
     from inspector.calibration.target import Target
@@ -112,8 +113,6 @@ def target_poses(target: Target, n: int, *, seed: int = 0, offset_mm: float = 8.
         over the sphere, so about half the cameras of a spherical rig see the print in each
         pose (the other half its back).
     """
-    from inspector_drivers.sim.simulate import random_pose
-
     if n < 0:
         raise ValueError(f"n must be >= 0, got {n}")
     rng = np.random.default_rng(seed)
@@ -338,6 +337,47 @@ def _shade_board(x: np.ndarray, y: np.ndarray, grey: np.ndarray, best: np.ndarra
         np.copyto(best, w, where=hit)
 
 
+def _visible_boards(target: Target, cam: Camera, pose: np.ndarray, rects: np.ndarray,
+                    margin: int) -> list[tuple[int, np.ndarray, tuple[int, int, int, int], bool]]:
+    """The target's boards camera ``cam`` sees (not edge-on, not a cube's far faces, in the image).
+
+    Parameters
+    ----------
+    pose : (4, 4) float
+        Target body -> world transform, mm.
+    rects : (B, 4) float
+        Each board's surface in its own frame, mm (:func:`board_rectangles`).
+    margin : int
+        Pixels added around each board's box (the blur's reach).
+
+    Returns
+    -------
+    list of (b, Gi, box, front)
+        Board index; ``Gi`` (3, 3), ``(X, Y, 1) ~ Gi @ (x, y, 1)`` from normalised image
+        coordinates to the board's (mm), scaled so its 3rd component is ``dist_o / depth``
+        (> 0 in front); its pixel box ``(u0, v0, u1, v1)`` (:func:`_pixel_box`); whether the
+        camera sees its printed (-z) side.
+    """
+    boards = []  # (b, Gi, box, front)
+    for b in range(target.n_boards):
+        B2C = _board_in_camera(cam, pose, target.faces[b])
+        ex, ey, nz, o = B2C[:3, 0], B2C[:3, 1], B2C[:3, 2], B2C[:3, 3]
+        facing = float(nz @ o)  # > 0: the camera is on the board's -z (printed) side
+        dist_o = float(np.linalg.norm(o))
+        if abs(facing) < 1e-9 * dist_o:
+            continue  # edge-on: no area
+        front = facing > 0.0
+        if target.kind == "charuco_cube" and not front:
+            continue  # inside the closed cube: hidden by the faces in front of it
+        box = _pixel_box(cam, B2C, rects[b], margin)
+        if box is None:
+            continue
+        # (X, Y, 1) ~ Gi @ (x, y, 1); scaled so its 3rd component is dist_o / depth (> 0 in front)
+        Gi = np.linalg.inv(np.stack([ex, ey, o], axis=1)) * dist_o
+        boards.append((b, Gi, box, front))
+    return boards
+
+
 def render_target(
     target: Target,
     cam: Camera,
@@ -397,24 +437,7 @@ def render_target(
     sq = float(target.square_mm)
     px_per_mm = max(1, round(sq * float(px_per_mm))) / sq  # whole texels per square
 
-    boards = []  # (b, Gi, box, front)
-    for b in range(target.n_boards):
-        B2C = _board_in_camera(cam, pose, target.faces[b])
-        ex, ey, nz, o = B2C[:3, 0], B2C[:3, 1], B2C[:3, 2], B2C[:3, 3]
-        facing = float(nz @ o)  # > 0: the camera is on the board's -z (printed) side
-        dist_o = float(np.linalg.norm(o))
-        if abs(facing) < 1e-9 * dist_o:
-            continue  # edge-on: no area
-        front = facing > 0.0
-        if target.kind == "charuco_cube" and not front:
-            continue  # inside the closed cube: hidden by the faces in front of it
-        box = _pixel_box(cam, B2C, rects[b], margin)
-        if box is None:
-            continue
-        # (X, Y, 1) ~ Gi @ (x, y, 1); scaled so its 3rd component is dist_o / depth (> 0 in front)
-        Gi = np.linalg.inv(np.stack([ex, ey, o], axis=1)) * dist_o
-        boards.append((b, Gi, box, front))
-
+    boards = _visible_boards(target, cam, pose, rects, margin)
     if boards:
         u0 = min(bx[2][0] for bx in boards)
         v0 = min(bx[2][1] for bx in boards)

@@ -26,8 +26,8 @@ import pytest
 from inspector.errors import InputError, RecipeError
 from inspector.params import build_params, describe_params
 from inspector_drivers.aravis import AravisParams
-from inspector_tools.emulators.aravis import EmulatedRig, fake_pattern, missing_requirements, write_rig
 from inspector_drivers.aravis.gvcp import discover
+from inspector_tools.emulators.aravis import EmulatedRig, fake_pattern, missing_requirements, write_rig
 
 N = 16
 

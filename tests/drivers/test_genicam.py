@@ -528,8 +528,8 @@ def test_viky_configuration_errors_name_the_camera(viky, tmp_path):
 
 
 def test_capture_command_writes_replayable_folders(viky, tmp_path):
-    from inspector_drivers import capture_cmd
     from inspector.capture_folder import read_capture, read_rig
+    from inspector_drivers import capture_cmd
 
     ap = argparse.ArgumentParser(prog="inspector")
     capture_cmd.add_parser(ap.add_subparsers(dest="command"))

@@ -45,8 +45,8 @@ use = "segment.threshold"
 def _capture(folder: Path) -> Path:
     import cv2
 
-    from inspector.model import Camera, Rig
     from inspector.capture_folder import write_capture
+    from inspector.model import Camera, Rig
 
     img = np.full((48, 64), 220.0, np.float32)
     cv2.circle(img, (32, 24), 12, 30.0, -1)

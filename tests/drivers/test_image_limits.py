@@ -21,10 +21,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inspector.capture_folder import is_complete_png, png_header, read_capture, write_capture
 from inspector.errors import CaptureError
 from inspector.limits import MAX_IMAGE_PIXELS, image_file_bytes
 from inspector.model import Camera, Rig
-from inspector.capture_folder import is_complete_png, png_header, read_capture, write_capture
 
 W, H = 64, 48
 RECIPE = """

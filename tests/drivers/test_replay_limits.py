@@ -15,10 +15,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from inspector.capture_folder import read_capture, read_rig, write_capture
 from inspector.errors import CaptureError, InputError
 from inspector.limits import MAX_CAMERAS, MAX_JSON_DEPTH, json_depth, limit, load_json
 from inspector.model import Camera, Rig
-from inspector.capture_folder import read_capture, read_rig, write_capture
 
 
 def _capture(folder: Path) -> Path:

@@ -197,8 +197,8 @@ def test_simulate_target_captures():
 
 
 def test_command_writes_capture_folders(tmp_path, capsys):
-    from inspector_frontends.cli import main
     from inspector.capture_folder import read_capture
+    from inspector_frontends.cli import main
 
     out = tmp_path / "cal"
     code = main(["simulate", "--target", str(CUBE), "--poses", "2", "--cameras", "4", "--width", "128",

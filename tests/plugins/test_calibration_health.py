@@ -68,10 +68,10 @@ def test_the_helper_turns_the_image_by_k_pixels():
 def measured(small_capture):
     """The small capture inspected up to the bcps stage, with the exact rig and with cam02
     turned by 1 px: {"exact": ctx, "turned": ctx}."""
+    from inspector.capture_folder import read_capture
     from inspector.params import build_params
     from inspector.pipeline import Band, InspectionContext, Tolerance
     from inspector.reference import Reference
-    from inspector.capture_folder import read_capture
     from inspector_plugins.align import AlignParams, run_align
     from inspector_plugins.bcps import RayParams, _run, select_rays
     from inspector_plugins.carve import CarveParams, run_carve
@@ -151,10 +151,9 @@ def test_only_the_pose_the_silhouettes_fix_is_judged(measured):
 
 def _ctx(cameras):
     """Six out-of-tolerance points 0.1 mm apart (one missing-material cluster) from ``cameras``."""
+    from inspector.model import Alignment, Capture
     from inspector.pipeline import Band, InspectionContext, Tolerance
     from inspector.reference import Reference
-
-    from inspector.model import Alignment, Capture
 
     pts = np.array([[5.0 + 0.1 * i, 5.0, -15.0] for i in range(6)])
     bc = BcpsPoints(pts, np.full(6, -0.4), np.asarray(cameras), np.zeros((6, 2)), np.ones(6), "ray")
@@ -230,8 +229,8 @@ default = {{ lower = -{TOLERANCE}, upper = {TOLERANCE} }}
 def test_inspector_run_names_the_camera_and_the_history_plots_it(small_capture, tmp_path, capsys):
     import cv2
 
-    from inspector_frontends.cli import main
     from inspector.history_store import read_history
+    from inspector_frontends.cli import main
 
     recipe = tmp_path / "small.toml"
     recipe.write_text(RECIPE)

@@ -14,8 +14,8 @@ import pytest
 import trimesh
 
 from inspector.characteristics.measure import Characteristic
-from inspector.parts import make_part
 from inspector.model import Alignment, BcpsPoints, Capture, Evaluation, EvaluationSummary, Rig
+from inspector.parts import make_part
 from inspector.pipeline import InspectionContext
 from inspector.reference import Reference
 

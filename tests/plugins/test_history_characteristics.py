@@ -4,15 +4,15 @@ characteristic over the parts a real history.sqlite recorded, and its control ch
 from __future__ import annotations
 
 import statistics
-from datetime import datetime, timedelta, UTC
+from datetime import UTC, datetime, timedelta
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from inspector_frontends.cli import main
-from inspector.model import InspectionResult
 from inspector.history_store import record
+from inspector.model import InspectionResult
+from inspector_frontends.cli import main
 
 DIAMETERS = [36.002, 35.998, 36.001, 36.004, 35.997, 36.000, 36.003, 35.999, 36.060]  # the last one NOK
 

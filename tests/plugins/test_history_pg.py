@@ -27,10 +27,10 @@ from urllib.parse import quote
 
 import pytest
 
-from inspector_frontends.cli import main
+from inspector import history_store
 from inspector.errors import RecipeError
 from inspector.model import Defect, DeviationStats, EvaluationSummary, InspectionResult
-from inspector import history_store
+from inspector_frontends.cli import main
 from inspector_plugins import history
 
 PASSWORD = "plant:p@ss/w0rd"  # a ':', an '@' and a '/' to mask, percent-encoded in the URL

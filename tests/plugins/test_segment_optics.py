@@ -192,9 +192,9 @@ def test_dust_on_the_edges_puts_no_point_far_off_and_no_false_defect(tmp_path):
     camera): taken as they are, specks on the silhouettes' edges put BCPS points 1.5 mm
     off the nominal cube; with their contour points dropped, none is 0.4 mm off and the
     cube passes with no defect."""
-    from inspector_tools.testing import SMALL_RECIPE, run_recipe
     from inspector.capture_folder import save_capture
     from inspector_drivers.sim.simulate import SimParams, simulate
+    from inspector_tools.testing import SMALL_RECIPE, run_recipe
 
     cap = simulate(build_params(SimParams, {**SMALL, "dust": 100, "dust_depth": 0.9}, "test"), 0)
     folder = save_capture(cap, tmp_path / "dusty")
