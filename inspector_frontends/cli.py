@@ -23,7 +23,12 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
+from inspector import API_VERSION, __version__, report, roles
+from inspector.approval import add_approve_parser, require_approved, run_approve
 from inspector.errors import InspectorError, PluginError, RecipeError
+from inspector.locale import _, choose, using
+from inspector.manager import BLOCK_ENV, create_plugin_manager
+from inspector.params import describe_params
 
 if TYPE_CHECKING:
     from inspector.manager import PluginManager
@@ -77,7 +82,6 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
     a Dask cluster (:mod:`inspector_frontends.distributed`), with the same results and output.
     ``unapproved``: on a production station, run a recipe no engineer approved anyway
     (:func:`inspector.approval.require_approved`: a warning and an audit row)."""
-    from inspector.locale import _
     from inspector.outputs import one_line
     from inspector.session import Inspected, RunStarted, Session, Source, Warned
 
@@ -104,8 +108,6 @@ def run_recipe(recipe_path: str, captures: Sequence[str] | None, out: str, refer
 
     session.subscribe(show)
     try:
-        from inspector.approval import require_approved
-
         require_approved(session.recipe, outdir=out, unapproved=unapproved)  # the operator role: RecipeError, exit 2
         if cluster is None:
             summary = session.run(Source(captures=tuple(captures or ()), watch=watch))
@@ -191,8 +193,6 @@ def _cluster_params(args: argparse.Namespace) -> dict[str, Any] | None:
 
 
 def _run_command(args: argparse.Namespace) -> int:
-    from inspector.locale import choose, using
-
     try:
         lang = choose(getattr(args, "lang", None))  # --lang, else $INSPECTOR_LANG, else English
     except ValueError as e:
@@ -213,11 +213,7 @@ def _add_plugins(sub: argparse._SubParsersAction[Any]) -> None:
 
 
 def _plugins(args: argparse.Namespace) -> int:
-    from inspector.params import describe_params
-
     pm: PluginManager = args.plugin_manager
-    from inspector import API_VERSION, __version__
-
     doc: dict[str, Any] = {"inspector": __version__, "api_version": API_VERSION,
                            "plugins": pm.plugin_names(), "plugin_info": pm.plugins(), "blocked": list(pm.blocked),
                            "stages": {}, "drivers": {}, "commands": {}, "settings": {},
@@ -277,21 +273,17 @@ def _add_recipe(sub: argparse._SubParsersAction[Any]) -> None:
     chk.add_argument("--reference", metavar="MESH")
     chk.add_argument("--rig", metavar="RIG.json", help="the rig the recipe will run on (a capture folder's rig.json): "
                                                        "refused when no part could ever be rejected with it")
-    from inspector.approval import add_approve_parser
-
     add_approve_parser(rsub)
 
 
 def _recipe_command(args: argparse.Namespace) -> int:
     if args.recipe_command == "approve":
-        from inspector.approval import run_approve
-
         return run_approve(args)
     return _recipe_check(args)
 
 
 def _recipe_check(args: argparse.Namespace) -> int:
-    _, recipe, _ref = _load(args.recipe, args.reference, args.plugin_manager)
+    _pm, recipe, _ref = _load(args.recipe, args.reference, args.plugin_manager)
     on = ""
     if getattr(args, "rig", None):  # issue 27: values in range that make a rejection impossible on this rig
         from inspector import api
@@ -311,26 +303,18 @@ def _recipe_check(args: argparse.Namespace) -> int:
 
 
 def _add_report(sub: argparse._SubParsersAction[Any]) -> None:
-    from inspector import report
-
     report.add_parser(sub)
 
 
 def _report(args: argparse.Namespace) -> int:
-    from inspector import report
-
     return report.run(args)
 
 
 def _add_roles(sub: argparse._SubParsersAction[Any]) -> None:
-    from inspector import roles
-
     roles.add_parser(sub)
 
 
 def _roles(args: argparse.Namespace) -> int:
-    from inspector import roles
-
     return roles.run(args)
 
 
@@ -384,8 +368,6 @@ def plugin_manager_for(argv: Sequence[str]) -> PluginManager:
     PluginError
         A ``--plugin`` file that is missing or broken (one line naming it).
     """
-    from inspector.manager import BLOCK_ENV, create_plugin_manager
-
     block, files = _global_options(argv)
     env = [b.strip() for b in os.environ.get(BLOCK_ENV, "").split(",") if b.strip()]
     return create_plugin_manager(block=[*env, *block], files=files)
@@ -396,11 +378,7 @@ def build_parser(pm: PluginManager | None = None) -> argparse.ArgumentParser:
     new plugin manager). A plugin command that takes a core command's name, or whose
     ``add_parser`` raises or adds no sub-parser of its name, is left out with one warning
     naming the plugin."""
-    from inspector import API_VERSION, __version__
-
     if pm is None:
-        from inspector.manager import create_plugin_manager
-
         pm = create_plugin_manager()
     ap = _Parser(prog="inspector", description="3D quality inspection from the silhouettes of a multi-camera rig (BCPS).")
     ap.add_argument("--version", action="version", version=f"inspector {__version__} (plugin API {API_VERSION})")
@@ -410,7 +388,7 @@ def build_parser(pm: PluginManager | None = None) -> argparse.ArgumentParser:
     ap.add_argument("--plugin", action="append", default=[], metavar="FILE.py",
                     help="also load this local module as a plugin (development; repeatable)")
     sub = ap.add_subparsers(dest="command", required=True, parser_class=_Parser)
-    for add, _ in CORE_COMMANDS.values():
+    for add, _run in CORE_COMMANDS.values():
         add(sub)
     for name in pm.commands.names():
         owner = pm.commands.owner(name) or "?"
@@ -423,7 +401,8 @@ def build_parser(pm: PluginManager | None = None) -> argparse.ArgumentParser:
             pm.command(name).add_parser(sub)
         except Exception as e:  # noqa: BLE001 - one plugin's parser must not stop the command line
             sub.choices.pop(name, None)
-            sub._choices_actions[:] = [a for a in sub._choices_actions if a.dest != name]
+            # Private: argparse offers no public way to take a sub-parser's help entry back out.
+            sub._choices_actions[:] = [a for a in sub._choices_actions if a.dest != name]  # noqa: SLF001 - argparse keeps its help list here, no API removes one
             print(f"inspector: warning: {who}: command {name!r} not added: add_parser raised "
                   f"{type(e).__name__}: {' '.join(str(e).split())}; block it with --block {owner}", file=sys.stderr)
             continue
@@ -434,7 +413,6 @@ def build_parser(pm: PluginManager | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    from inspector.manager import BLOCK_ENV
     from inspector.startup import defer_open3d_plotly
 
     defer_open3d_plotly()  # a new process reaches its first verdict sooner (see inspector.startup)

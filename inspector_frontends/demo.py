@@ -7,12 +7,15 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from inspector import hookimpl
-
-if TYPE_CHECKING:
-    from inspector.registry import CommandRegistry
+from inspector.params import build_params
+from inspector.registry import CommandRegistry, CommandSpec
+from inspector.report import render_report
+from inspector.resources import recipe_path
+from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
+from inspector_frontends.cli import EXIT_ERROR, EXIT_FAIL, EXIT_OK, err, run_recipe
 
 __all__ = ["add_demo_parser", "demo_command"]
 
@@ -26,11 +29,6 @@ def demo_command(args: argparse.Namespace) -> int:
     """Simulate a good and a notched cube, inspect both with the shipped ``demo.toml``."""
     from inspector.capture_folder import save_capture
     from inspector.outputs import read_ply
-    from inspector.params import build_params
-    from inspector.report import render_report
-    from inspector.resources import recipe_path
-    from inspector_drivers.sim.simulate import SimParams, sim_rig, simulate
-    from inspector_frontends.cli import EXIT_ERROR, EXIT_FAIL, EXIT_OK, err, run_recipe
 
     out = Path(args.out)
     cap_dir = out / "captures"
@@ -84,6 +82,4 @@ def demo_command(args: argparse.Namespace) -> int:
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
     """``inspector demo``: a built-in plugin (entry point ``demo``), like any command."""
-    from inspector.registry import CommandSpec
-
     registry.add(CommandSpec("demo", add_demo_parser, demo_command, "simulate a good and a notched cube and inspect both"))

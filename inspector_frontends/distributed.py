@@ -49,16 +49,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from inspector.capture_folder import named_acquisition, read_capture
 from inspector.errors import InspectorError, RecipeError
+from inspector.manager import PluginManager, create_plugin_manager
+from inspector.model import InspectionResult
+from inspector.recipe import Recipe, load_recipe
+from inspector.reference import Reference
+from inspector.runner import ABORTED, Outcome, error_result, inspect_acquisition
+from inspector.session import RunSummary, Session, Source, capture_folders
 
 if TYPE_CHECKING:
-    from inspector.manager import PluginManager
-    from inspector.model import InspectionResult
-    from inspector.recipe import Budget, Recipe
-    from inspector.reference import Reference
+    from inspector.recipe import Budget
     from inspector.registry import Acquisition
-    from inspector.runner import Outcome
-    from inspector.session import RunSummary, Session
 
 __all__ = ["WorkerSetup", "worker_setup", "inspect_folder", "connect", "DaskExecutor", "run_on_cluster"]
 
@@ -119,10 +121,6 @@ def _load_on_worker(setup: WorkerSetup) -> tuple[Recipe, Reference | None, Plugi
     hit = _LOADED.get(setup)
     if hit is not None:
         return hit
-    from inspector.manager import create_plugin_manager
-    from inspector.recipe import load_recipe
-    from inspector.reference import Reference
-
     pm = create_plugin_manager(block=setup.block, files=setup.files, warn=lambda line: None)  # the client warned
     recipe = load_recipe(setup.recipe_path, pm, reference=setup.reference)
     if recipe.sha256 != setup.recipe_sha256:
@@ -144,9 +142,6 @@ def inspect_folder(setup: WorkerSetup, folder: str) -> tuple[InspectionResult, s
     A capture that cannot be read or inspected is a result with verdict ``error``, as in the
     local run; only a bug of this wrapper raises (and the task is retried).
     """
-    from inspector.capture_folder import named_acquisition, read_capture
-    from inspector.runner import inspect_acquisition
-
     acq = named_acquisition(Path(folder), read_capture)
     try:
         recipe, reference, pm = _load_on_worker(setup)
@@ -157,8 +152,6 @@ def inspect_folder(setup: WorkerSetup, folder: str) -> tuple[InspectionResult, s
 
 
 def _setup_error(setup: WorkerSetup, name: str, reason: str) -> InspectionResult:
-    from inspector.model import InspectionResult
-
     return InspectionResult(capture=name, recipe=setup.recipe_name, verdict="error", error=reason,
                             timings_s={"total": 0.0}, recipe_path=setup.recipe_path, recipe_sha256=setup.recipe_sha256)
 
@@ -245,8 +238,6 @@ class DaskExecutor:
         closing the iterator cancels the tasks not done."""
         from distributed import as_completed
 
-        from inspector.runner import ABORTED, Outcome, error_result
-
         recorded: set[str] = set()
         try:
             futures = self._submit(acquisitions)
@@ -322,9 +313,6 @@ def run_on_cluster(session: Session, captures: Sequence[str], *, scheduler: str 
     KeyboardInterrupt
         Ctrl-C: the tasks are cancelled; results written so far are kept.
     """
-    from inspector.capture_folder import named_acquisition
-    from inspector.session import Source, capture_folders
-
     with _QuietDask():
         setup = worker_setup(session)
         folders = capture_folders([str(c) for c in captures])

@@ -7,9 +7,12 @@ imports nothing heavy: :mod:`inspector_frontends.gui.app` does, when the GUI sta
 
 Modules: ``viewmodel`` (Qt-free: what the screen shows, built from an inspection or a
 result folder), ``worker`` (the session in a worker thread, events as queued signals),
-``widgets`` (banner, defect table, camera strip, history strip), ``view3d`` (the 3D view),
-``editor`` (the engineer's recipe form), ``window`` (the operator screen: fitted to its
-screen, kiosk mode, the shift panel), ``app`` (the command, ``--kiosk``, ``--lang``,
+``widgets`` (verdict banner, defect table), ``cameras`` (camera strip, large camera view),
+``history_strip`` (history strip, shift panel), ``prepare`` (the drawing made ahead in the
+worker thread), ``view3d`` (the 3D view), ``editor`` (the engineer's recipe form), ``screen``
+(the window fitted to its screen, the kiosk's return to the front), ``window`` (the operator
+screen), ``collector`` (the garbage collector on the GUI thread), ``app`` (the command,
+``--kiosk``, ``--lang``,
 ``--config``), ``i18n`` (the German and Spanish translations, Qt's ``.ts``/``.qm`` files and
 ``python -m inspector_frontends.gui.i18n.build``).
 """

@@ -26,9 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from inspector.params import param
+from inspector.cell import cell_file, load_cell
+from inspector.errors import RecipeError
+from inspector.params import build_params, param
 from inspector.resources import recipe_path
-from inspector.cell import cell_file
 from inspector.shift import ShiftSettings
 
 if TYPE_CHECKING:
@@ -49,9 +50,6 @@ def load_gui_settings(path: Path | None) -> tuple[GuiSettings, ShiftSettings]:
     """``([gui], [shifts])`` of the cell's settings file (defaults without one).
 
     Raises RecipeError in one line naming the file and the key."""
-    from inspector.params import build_params
-    from inspector.cell import load_cell
-
     tables = load_cell(path)
     name = path.name if path is not None else "cell"
     gui: GuiSettings = build_params(GuiSettings, tables.get("gui"), f"{name}: gui")
@@ -113,7 +111,6 @@ def run(args: argparse.Namespace) -> int:
         if value is not None and not Path(value).is_dir():
             print(f"inspector: error: {flag} {value}: not a folder", file=sys.stderr)
             return 2
-    from inspector.errors import RecipeError
     from inspector_frontends.gui.i18n import choose
 
     try:

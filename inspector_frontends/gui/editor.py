@@ -30,6 +30,7 @@ from PySide6.QtWidgets import (
     QWidget,
 )
 
+from inspector.errors import RecipeError
 from inspector.recipe_form import Field, RecipeForm, form_for, save_new, validate
 
 if TYPE_CHECKING:
@@ -219,8 +220,6 @@ class RecipeEditor(QDialog):
     def save(self) -> None:
         if self.check() is not None:
             return
-        from inspector.errors import RecipeError
-
         try:
             self.saved = save_new(self.edited(), self.save_dir, self.pm, name=self.name.text().strip() or None)
         except (RecipeError, OSError, ValueError) as e:

@@ -1,8 +1,8 @@
 """``inspector gui``: the operator window's command, a built-in plugin (entry point ``gui``).
 
 Registered through ``inspector_register_commands`` like any plugin's command, so the core
-command line never imports the GUI package; :mod:`inspector_frontends.gui.app` imports Qt only when
-the command runs.
+command line never imports the GUI package; :mod:`inspector_frontends.gui.app` (imported here:
+it imports no Qt at its top) imports Qt only when the command runs.
 """
 
 from __future__ import annotations
@@ -12,19 +12,16 @@ from typing import Any
 
 from inspector import hookimpl
 from inspector.registry import CommandRegistry, CommandSpec
+from inspector_frontends.gui import app
 
 __all__ = ["inspector_register_commands"]
 
 
 def _add_parser(sub: argparse._SubParsersAction[Any]) -> None:
-    from inspector_frontends.gui import app
-
     app.add_parser(sub)
 
 
 def _run(args: argparse.Namespace) -> int:
-    from inspector_frontends.gui import app
-
     return app.run(args)
 
 

@@ -21,9 +21,9 @@ from typing import Any, cast
 
 import numpy as np
 import pyvista as pv
-from pyvistaqt import QtInteractor
 from PySide6.QtCore import Qt, QTimer
 from PySide6.QtWidgets import QWidget
+from pyvistaqt import QtInteractor
 
 from inspector_frontends.gui.i18n import number
 from inspector_frontends.gui.viewmodel import SCALED, SPAN, DefectRow, ResultView, normalised
@@ -77,6 +77,11 @@ class _Interactor(QtInteractor):
         if not self._paint_asked:
             self._paint_asked = True
             QTimer.singleShot(0, self, self._show_frame)
+
+    @property
+    def frame_pending(self) -> bool:
+        """Whether a frame was rendered that no paint has shown yet."""
+        return self._fresh
 
     def _show_frame(self) -> None:
         self._paint_asked = False
@@ -183,7 +188,7 @@ class DeviationView(QWidget):
     def frame_pending(self) -> bool:
         """Whether a frame was rendered that the widget has not shown yet (its paint comes
         in a later event-loop turn)."""
-        return bool(self.plotter._fresh) and self.plotter.isVisible()
+        return bool(self.plotter.frame_pending) and self.plotter.isVisible()
 
     def _set_reference(self, reference: tuple[np.ndarray, np.ndarray] | None) -> None:
         if reference is None:

@@ -15,7 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from inspector.capture_folder import read_rig
 from inspector.errors import InputError
+from inspector.outputs import read_ply, result_to_json
 
 __all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text", "camera_thumbs",
            "calibration_flags", "normalised", "point_arrays", "SPAN", "SCALED", "set_text", "translate", "number"]
@@ -354,7 +356,6 @@ def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, ke
     thumbnails out (the slowest part: the verdict can be shown before they are made with
     :func:`camera_thumbs`).
     """
-    from inspector.outputs import result_to_json
 
     res = outcome.result
     doc = result_to_json(res, with_points=False)
@@ -404,7 +405,6 @@ def _part_id(metadata: dict[str, Any]) -> str | None:
 def from_folder(folder: Path, reference: Any = None) -> ResultView:
     """The view of a result folder written earlier (``result.json`` and its PLY files),
     without inspecting again. InputError naming the file when it cannot be read."""
-    from inspector.outputs import read_ply
 
     folder = Path(folder)
     path = folder / "result.json"
@@ -435,8 +435,6 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
     rig_file = folder / "rig.json"
     if rig_file.is_file():  # not a CONTRACT output; used when present
         try:
-            from inspector.capture_folder import read_rig
-
             names, centres = _centres(read_rig(rig_file))
         except Exception:  # noqa: BLE001 - the rig is optional here
             pass

@@ -6,8 +6,9 @@ recipe, the role and the stage progress in the status bar. Keyboard: Space or F5
 F6 LIVE, Esc CANCEL, Ctrl+O open a capture, Ctrl+Shift+O open a result, Ctrl+E export the
 report, Ctrl+L engineer login, Ctrl+R choose a recipe and Ctrl+Shift+E edit it (engineer).
 
-The window fits the screen it opens on (:meth:`MainWindow.fit_screen`: the available
-geometry in logical pixels, never larger; a portrait screen gets the portrait layout). In
+The window fits the screen it opens on (:meth:`~inspector_frontends.gui.screen.ScreenWindow.fit_screen`:
+the available geometry in logical pixels, never larger; a portrait screen gets the portrait
+layout: :meth:`MainWindow.set_portrait`). In
 kiosk mode (``inspector gui --kiosk`` or the cell's ``[gui] kiosk = true``) it is full screen
 without decorations, the operator cannot close it and sees no menu item that leaves the
 operator's role, and it comes back to the front after a dialog. The history strip shows the
@@ -24,16 +25,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-from PySide6.QtCore import QEvent, QObject, QRect, QSize, Qt, QTimer, Signal
-from PySide6.QtGui import QAction, QGuiApplication, QKeySequence, QScreen, QShortcut
+from PySide6.QtCore import QEvent, QObject, Qt, QTimer, Signal
+from PySide6.QtGui import QAction, QKeySequence, QShortcut
 from PySide6.QtWidgets import (
     QApplication,
     QBoxLayout,
-    QDialog,
     QDockWidget,
     QFileDialog,
     QLabel,
-    QMainWindow,
     QMessageBox,
     QPushButton,
     QSizePolicy,
@@ -43,25 +42,22 @@ from PySide6.QtWidgets import (
 )
 
 from inspector.errors import InputError, InspectorError, RecipeError
-from inspector_frontends.gui.view3d import DeviationView
-from inspector_frontends.gui.viewmodel import ResultView, from_folder
-from inspector_frontends.gui.i18n import number
-from inspector_frontends.gui.widgets import (
-    HISTORY,
-    SHIFT,
-    CameraDialog,
-    CameraStrip,
-    DefectTable,
-    HistoryStrip,
-    VerdictBanner,
-    prepare_view,
-    verdict_word,
-)
-from inspector_frontends.gui.worker import SessionWorker
 from inspector.manager import PluginManager, create_plugin_manager
-from inspector.roles import ENGINEER, RoleSession
+from inspector.report import render_pdf
+from inspector.roles import ENGINEER, RoleSession, password_problem
 from inspector.session import Session, Source
 from inspector.shift import ShiftSettings
+from inspector_frontends.gui.cameras import CameraDialog, CameraStrip
+from inspector_frontends.gui.collector import freeze_startup_objects
+from inspector_frontends.gui.editor import LoginDialog, RecipeEditor
+from inspector_frontends.gui.history_strip import HistoryStrip, read_shift
+from inspector_frontends.gui.i18n import number
+from inspector_frontends.gui.prepare import prepare_view
+from inspector_frontends.gui.screen import KioskGuard, ScreenWindow
+from inspector_frontends.gui.view3d import DeviationView
+from inspector_frontends.gui.viewmodel import ResultView, from_folder
+from inspector_frontends.gui.widgets import HISTORY, SHIFT, DefectTable, VerdictBanner, verdict_word
+from inspector_frontends.gui.worker import SessionWorker
 
 __all__ = ["MainWindow", "freeze_startup_objects"]
 
@@ -77,37 +73,6 @@ QTableWidget { font-size: 13pt; }
 """
 
 
-#: After a result is drawn, objects left out of the garbage collector's scans again once
-#: more than this many are tracked (what the first inspections import lazily).
-REFREEZE_OBJECTS = 20_000
-
-
-def freeze_startup_objects(window: MainWindow | None = None) -> None:
-    """Leave the objects alive now (modules, Qt, VTK and matplotlib wrappers: some 420k) out
-    of Python's full garbage collections from now on (``gc.freeze``). A full collection
-    scans every tracked object, in whichever thread triggers it and holding the GIL: with
-    them it blocked the GUI thread 300-900 ms every eleventh inspection or so (measured);
-    without them it takes a few ms. The modules the first inspection imports (some 130k
-    objects: 70-90 ms a full collection, every few inspections) are left out too: with
-    ``window``, after each result it draws while more than :data:`REFREEZE_OBJECTS` objects
-    are tracked. Call once, when the window is up (``inspector gui`` and ``bench --gui`` do;
-    a test suite need not: its leak checks look for objects with ``gc.get_objects``, which
-    leaves frozen ones out)."""
-    import gc
-
-    gc.collect()
-    gc.freeze()
-    if window is not None:
-        window.result_shown.connect(_refreeze)
-
-
-def _refreeze(view: Any) -> None:
-    import gc
-
-    if len(gc.get_objects()) > REFREEZE_OBJECTS:
-        gc.freeze()  # no collection first: it would cost what is avoided (a few garbage objects stay)
-
-
 class _Activity(QObject):
     """Any key or click counts as the engineer still being at the cell."""
 
@@ -121,28 +86,7 @@ class _Activity(QObject):
         return False
 
 
-class _KioskGuard(QObject):
-    """Kiosk: a dialog of the window that closes brings the window back to the front (without
-    a window manager nothing else would), and so does the window losing the focus to nothing."""
-
-    def __init__(self, window: MainWindow) -> None:
-        super().__init__(window)
-        self.window = window
-
-    def eventFilter(self, obj: QObject, event: QEvent) -> bool:
-        kind = event.type()
-        if kind == QEvent.Type.Hide and isinstance(obj, QDialog):
-            QTimer.singleShot(0, self.window.to_front)
-        elif kind == QEvent.Type.WindowDeactivate and obj is self.window:
-            QTimer.singleShot(50, self._refocus)
-        return False
-
-    def _refocus(self) -> None:
-        if QApplication.activeWindow() is None and QApplication.activeModalWidget() is None:
-            self.window.to_front()
-
-
-class MainWindow(QMainWindow):
+class MainWindow(ScreenWindow):
     """The operator's window.
 
     Parameters
@@ -223,10 +167,10 @@ class MainWindow(QMainWindow):
         app = QApplication.instance()
         assert app is not None  # a widget exists, so does the application
         app.installEventFilter(self._activity)
-        self._guard: _KioskGuard | None = None
+        self._guard: KioskGuard | None = None
         if kiosk:
             self.setWindowFlag(Qt.WindowType.FramelessWindowHint, True)
-            self._guard = _KioskGuard(self)
+            self._guard = KioskGuard(self)
             app.installEventFilter(self._guard)
         self._idle = QTimer(self)
         self._idle.setInterval(1000)
@@ -701,8 +645,6 @@ class MainWindow(QMainWindow):
 
     def export_report(self) -> Path | None:
         """report.pdf in the shown result's folder, with the 3D view as its picture."""
-        from inspector.report import render_pdf
-
         self.flush_drawing()
         v = self.current_result
         if v is None or v.folder is None:
@@ -721,9 +663,6 @@ class MainWindow(QMainWindow):
 
     # -- roles --------------------------------------------------------------------------------
     def ask_login(self) -> None:
-        from inspector_frontends.gui.editor import LoginDialog
-        from inspector.roles import password_problem
-
         dlg = LoginDialog(self, password_problem(config_dir=self.config_dir))
         if dlg.exec():
             self.login(dlg.who.text().strip() or "engineer", dlg.password.text())
@@ -741,53 +680,6 @@ class MainWindow(QMainWindow):
         self._update_role()
 
     # -- the screen and the kiosk -------------------------------------------------------------
-    def fit_screen(self, screen: QScreen | None = None) -> QRect:
-        """Size and place the window for ``screen`` (default: the one it is on, else the
-        primary): its available geometry (the desktop's panels left out; logical pixels, so
-        HiDPI scaling is honoured), never larger; the whole screen in kiosk mode. A portrait
-        screen gets the portrait layout (:meth:`set_portrait`). Returns the geometry set."""
-        screen = screen or self.screen() or QGuiApplication.primaryScreen()
-        area = screen.geometry() if self.kiosk else screen.availableGeometry()
-        self.set_portrait(area.height() > area.width())
-        if self.kiosk:
-            self.setGeometry(area)
-            return area
-        # A window manager adds its frame around the client area: known once shown (0 before,
-        # and without a window manager); showEvent fits again with it.
-        frame = self.frameGeometry().size() - self.geometry().size() if self.isVisible() else QSize(0, 0)
-        size = area.size() - frame
-        self.resize(size)
-        self.move(area.topLeft())
-        self._fitted_for = (area.x(), area.y(), area.width(), area.height())
-        return QRect(area.topLeft(), size)
-
-    def show_on_screen(self, screen: QScreen | None = None) -> None:
-        """Show the window fitted to ``screen`` (full screen in kiosk mode)."""
-        if screen is not None and self.windowHandle() is None:
-            self.create()
-        if screen is not None and self.windowHandle() is not None:
-            self.windowHandle().setScreen(screen)
-        self.fit_screen(screen)
-        if self.kiosk:
-            self.showFullScreen()
-        else:
-            self.show()
-
-    def showEvent(self, event: Any) -> None:
-        super().showEvent(event)
-        if not self.kiosk and self._fitted_for is not None:
-            QTimer.singleShot(0, self._refit_frame)
-
-    def _refit_frame(self) -> None:
-        """Once shown, a window manager's frame is known: the frame, not only the client
-        area, must fit the available area."""
-        screen = self.screen()
-        if screen is None or self.isFullScreen() or self.isMaximized():
-            return
-        area = screen.availableGeometry()
-        if not area.contains(self.frameGeometry()):
-            self.fit_screen(screen)
-
     def set_portrait(self, portrait: bool) -> None:
         """The portrait layout (a screen higher than wide): the buttons in a row under the
         banner, the 3D view above the defects and cameras, which sit side by side."""
@@ -798,15 +690,6 @@ class MainWindow(QMainWindow):
         self.right.setOrientation(Qt.Orientation.Horizontal if portrait else Qt.Orientation.Vertical)
         self.right.setSizes([400, 400] if portrait else [220, 520])
 
-    def to_front(self) -> None:
-        """The window back in front and active (kiosk: after a dialog closed)."""
-        if not self.isVisible() or self._closing:
-            return
-        if self.kiosk and not self.isFullScreen():
-            self.showFullScreen()
-        self.raise_()
-        self.activateWindow()
-
     def shutdown(self) -> bool:
         """Close the window whatever the role (the application quitting, a test's end)."""
         self._leaving = True
@@ -815,8 +698,6 @@ class MainWindow(QMainWindow):
     def refresh_shift(self) -> None:
         """Read the current shift's counters again (also once a minute: a new shift begins
         by itself)."""
-        from inspector_frontends.gui.widgets import read_shift
-
         self.history.shift.show_counters(read_shift(self.out, self.shifts))
 
     def _check_idle(self) -> None:
@@ -848,8 +729,6 @@ class MainWindow(QMainWindow):
         if self.roles.role != ENGINEER:
             self.progress_label.setText(self.tr("the recipe editor needs engineer mode (Ctrl+L)"))
             return None
-        from inspector_frontends.gui.editor import RecipeEditor
-
         try:
             editor = RecipeEditor(self.recipe_path, self.pm, self.out / "recipes", self)
         except RecipeError as e:

@@ -18,15 +18,15 @@ from __future__ import annotations
 import dataclasses
 import sys
 import threading
-from typing import Any
 from collections.abc import Callable
+from typing import Any
 
 from PySide6.QtCore import QObject, Signal
 
 from inspector import hookimpl
 from inspector.errors import InspectorError
-from inspector_frontends.gui.viewmodel import ResultView, camera_thumbs, from_outcome
 from inspector.session import Inspected, RunEnded, RunStarted, Session, Source, Warned
+from inspector_frontends.gui.viewmodel import ResultView, camera_thumbs, from_outcome
 
 __all__ = ["SessionWorker", "GATE_S"]
 

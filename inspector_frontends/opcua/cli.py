@@ -19,6 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from inspector.errors import RecipeError
+
 __all__ = ["add_parser", "run"]
 
 
@@ -49,8 +51,6 @@ def add_parser(subparsers: Any) -> None:
 
 
 def _make_cert(args: argparse.Namespace) -> int:
-    from inspector.errors import RecipeError
-
     try:
         from inspector_frontends.opcua.security import make_pki
     except ImportError as e:
@@ -66,7 +66,6 @@ def _make_cert(args: argparse.Namespace) -> int:
 def _hash_password() -> int:
     import getpass
 
-    from inspector.errors import RecipeError
     from inspector_frontends.opcua.config import hash_password
 
     if sys.stdin.isatty():
@@ -88,8 +87,6 @@ def _missing(e: ImportError) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """``inspector serve``; see the module docstring."""
-    from inspector.errors import RecipeError
-
     if args.make_cert:
         return _make_cert(args)
     if args.hash_password:
@@ -128,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
             except (NotImplementedError, RuntimeError):  # not the main thread, or not POSIX
                 pass
         await server.start()
-        writer = server._creds.user if server._creds is not None else None
+        writer = server.writer
         who = f"user {writer!r}" if writer else "nobody"
         if settings.anonymous_write:
             who += " and anonymous clients"

@@ -54,6 +54,9 @@ CLIENT_CERT, CLIENT_KEY = "plc-cert.der", "plc-key.pem"
 #: The client certificates the server trusts (DER or PEM), a folder of the PKI folder.
 TRUSTED = "trusted"
 
+#: The ``security`` settings: the endpoints a server offers.
+Security = Literal["sign-encrypt", "both", "none"]
+
 _HASH = "pbkdf2_sha256"
 _ITERATIONS = 200_000
 
@@ -95,10 +98,16 @@ def load_settings(path: str | os.PathLike[str] | None) -> ServerSettings:
     return settings
 
 
-def with_options(settings: ServerSettings, **options: object) -> ServerSettings:
+def with_options(settings: ServerSettings, *, endpoint: str | None = None, security: Security | None = None,
+                 pki: str | os.PathLike[str] | None = None,
+                 recipes: str | os.PathLike[str] | None = None) -> ServerSettings:
     """``settings`` with each option that is not None replacing its value (the command line)."""
-    given = {k: (Path(v) if k in ("pki", "recipes") and v is not None else v) for k, v in options.items() if v is not None}
-    return replace(settings, **given) if given else settings  # type: ignore[arg-type]
+    if endpoint is None and security is None and pki is None and recipes is None:
+        return settings
+    return replace(settings, endpoint=settings.endpoint if endpoint is None else endpoint,
+                   security=settings.security if security is None else security,
+                   pki=settings.pki if pki is None else Path(pki),
+                   recipes=settings.recipes if recipes is None else Path(recipes))
 
 
 def parse_endpoint(url: str) -> tuple[str, int]:

@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from inspector.errors import RecipeError
 from inspector.model import Defect, DeviationStats, EvaluationSummary, InspectionResult
 
 __all__ = ["JOURNAL_FILE", "LOCK_FILE", "Journal", "result_from_json", "lock_outdir"]
@@ -128,8 +129,6 @@ class Journal:
 def lock_outdir(outdir: Path) -> Any:
     """An open file holding an exclusive lock on ``outdir`` for this process (closed: released,
     also by a kill); None where file locks do not exist. RecipeError when another server holds it."""
-    from inspector.errors import RecipeError
-
     try:
         import fcntl
     except ImportError:  # not POSIX

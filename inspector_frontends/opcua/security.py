@@ -12,8 +12,8 @@
   may read and subscribe, and write or call only with ``anonymous_write = true``; nobody may
   add or delete nodes. The inputs are the only writable variables (AccessLevel).
 
-Imports asyncua and cryptography: only :mod:`inspector_frontends.opcua.server` and the
-``serve`` command import this module.
+Imports asyncua and cryptography: only :mod:`inspector_frontends.opcua.server` (through
+:mod:`inspector_frontends.opcua.address_space`) and the ``serve`` command import this module.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from typing import Any
 
 from asyncua import ua
 from asyncua.crypto.permission_rules import SimpleRoleRuleset, User, UserRole
+from asyncua.server.user_managers import UserManager as AsyncuaUserManager
 
 from inspector.errors import RecipeError
 from inspector_frontends.opcua.config import CLIENT_CERT, CLIENT_KEY, SERVER_CERT, SERVER_KEY, TRUSTED, Credentials
@@ -38,7 +39,8 @@ SERVER_URI = "urn:inspector-bcps:opcua:server"
 #: The example client's (the PLC's) application URI, in the client certificate made with it.
 CLIENT_URI = "urn:inspector-bcps:opcua:plc"
 
-_WRITE = {ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary), ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)}
+_WRITE = {ua.NodeId(ua.Int32(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)),
+          ua.NodeId(ua.Int32(ua.ObjectIds.CallRequest_Encoding_DefaultBinary))}
 
 
 def make_certificate(cert_file: Path, key_file: Path, *, uri: str, name: str, server: bool,
@@ -140,7 +142,7 @@ def _login_key(username: str | None, password: Any) -> bytes:
     return hashlib.sha256((username or "").encode("utf-8") + b"\0" + pw).digest()
 
 
-class UserManager:
+class UserManager(AsyncuaUserManager):
     """asyncua's user manager: anonymous, or the configured user with the right password;
     failed logins slowed (:class:`LoginThrottle`).
 
@@ -202,6 +204,8 @@ class UserManager:
 
 
 _PRECHECK = "_inspector_precheck"
+#: Marks asyncua's request handler once wrapped (an attribute of the wrapper function).
+_WRAPPED = "_inspector_wrapped"
 
 
 def check_logins_off_the_loop(iserver: Any, users: UserManager) -> None:
@@ -221,7 +225,7 @@ def check_logins_off_the_loop(iserver: Any, users: UserManager) -> None:
 
     setattr(iserver, _PRECHECK, users.precheck)
     cls = uaprocessor.UaProcessor
-    if getattr(cls.process_message, "_inspector_wrapped", False):
+    if getattr(cls.process_message, _WRAPPED, False):
         return
     original = cls.process_message
 
@@ -234,7 +238,7 @@ def check_logins_off_the_loop(iserver: Any, users: UserManager) -> None:
                 pass
         return await original(self, seqhdr, body)
 
-    process_message._inspector_wrapped = True  # type: ignore[attr-defined]
+    setattr(process_message, _WRAPPED, True)
     cls.process_message = process_message  # type: ignore[method-assign]
 
 
@@ -246,7 +250,7 @@ async def _look_ahead(processor: Any, body: Any, precheck: Any) -> None:
     from asyncua.ua.ua_binary import nodeid_from_binary, struct_from_binary
 
     buf = body.copy()
-    if nodeid_from_binary(buf) != ua.NodeId(ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary):
+    if nodeid_from_binary(buf) != ua.NodeId(ua.Int32(ua.ObjectIds.ActivateSessionRequest_Encoding_DefaultBinary)):
         return
     struct_from_binary(ua.RequestHeader, buf)
     params = struct_from_binary(ua.ActivateSessionParameters, buf)

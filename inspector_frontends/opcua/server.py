@@ -42,133 +42,42 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import json
-import math
 import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from datetime import datetime, UTC
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from asyncua import Server, ua
 from asyncua.common.callback import CallbackType
 
-from inspector.errors import InspectorError, RecipeError
-from inspector.manager import PluginManager
+from inspector import outputs
+from inspector.approval import approval_problem
+from inspector.errors import CaptureError, InspectorError, RecipeError
+from inspector.history_store import recorded
+from inspector.manager import PluginManager, create_plugin_manager
 from inspector.names import name_problem, printable
-from inspector.registry import Acquisition
-from inspector.session import Inspected, Session, Source, Warned
+from inspector.runner import inspect_capture
+from inspector.session import Inspected, RunSummary, Session, Source, Warned
+from inspector.tracebacks import save_traceback
+from inspector_drivers.sim.simulate import SimParams, simulate
 from inspector_frontends.opcua import model
+from inspector_frontends.opcua.address_space import add_model, data_value, secured_server
 from inspector_frontends.opcua.config import ServerSettings, credentials, parse_endpoint, pki_files
 from inspector_frontends.opcua.journal import Journal, lock_outdir, result_from_json
-from inspector_frontends.opcua.security import (SERVER_URI, Rules, UserManager, check_logins_off_the_loop,
-                                              quiet_library_logs, validator)
+from inspector_frontends.opcua.records import log_line, record
+from inspector_frontends.opcua.security import quiet_library_logs
+from inspector_frontends.opcua.triggers import Job, PartIdDriver, now, part_id_problem
 
 __all__ = ["InspectorServer", "ServerThread", "part_id_problem"]
-
-_VT = {"String": ua.VariantType.String, "Boolean": ua.VariantType.Boolean, "UInt32": ua.VariantType.UInt32,
-       "Int32": ua.VariantType.Int32, "Double": ua.VariantType.Double, "String[]": ua.VariantType.String}
-_POLICIES = {
-    "sign-encrypt": [ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt],
-    "both": [ua.SecurityPolicyType.NoSecurity, ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt],
-    "none": [ua.SecurityPolicyType.NoSecurity],
-}
-#: Longest PartId: a result folder name, with room for a ``-N`` suffix.
-MAX_PART_ID_BYTES = 200
-_MAX_DEFECTS_LISTED = 10
-
-
-def part_id_problem(part_id: str) -> str | None:
-    """Why ``part_id`` cannot name a capture and its result folder, or None ("" is allowed:
-    the driver names the capture)."""
-    if part_id == "":
-        return None
-    if len(part_id.encode("utf-8", "surrogatepass")) > MAX_PART_ID_BYTES:
-        return f"is longer than {MAX_PART_ID_BYTES} bytes"
-    why = name_problem(part_id)
-    if why is not None:
-        return why
-    if part_id.startswith("."):
-        return "starts with a dot (a hidden folder)"
-    return None
-
-
-def _now() -> str:
-    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 def _one_line(text: object) -> str:
     return " ".join(str(text).split())
-
-
-def _finite(x: Any) -> float | None:
-    try:
-        f = float(x)
-    except (TypeError, ValueError):
-        return None
-    return f if math.isfinite(f) else None
-
-
-@dataclasses.dataclass(frozen=True)
-class _Job:
-    """One accepted trigger: the part's id ("" none), when, and the clock at acceptance."""
-
-    part_id: str
-    triggered_at: str
-    t0: float
-
-
-class _PartIdDriver:
-    """The recipe's driver with each capture named after the PartId of the trigger that
-    asked for it (``PartId``, then ``PartId-2`` ... when the name is taken in ``--out`` or the
-    history), and the PartId and trigger time in its metadata (``capture.json``'s
-    ``part_id`` and ``timestamp``: the history's ``part_id`` and ``triggered_at``)."""
-
-    def __init__(self, inner: Any, job: Callable[[], _Job | None],
-                 named: Callable[[str, str, str], None] = lambda name, part_id, at: None) -> None:
-        self._inner = inner
-        self._job = job
-        self._named = named  # the journal: the capture's name, before it is loaded and inspected
-        #: Set by the session (``Session._hand_off``): whether a name is taken downstream.
-        self.taken: Callable[[str], bool] = lambda name: False
-
-    @property
-    def sleep(self) -> Any:  # a waiting driver's poll (AttributeError when it has none)
-        return self._inner.sleep
-
-    @sleep.setter
-    def sleep(self, value: Any) -> None:
-        self._inner.sleep = value
-
-    def acquire(self) -> Iterator[Acquisition]:
-        for acq in self._inner.acquire():
-            job = self._job()
-            part_id = job.part_id if job is not None else ""
-            at = job.triggered_at if job is not None else _now()
-            name = self._free(part_id) if part_id else acq.name
-            self._named(name, part_id, at)
-            yield Acquisition(name, lambda acq=acq, name=name, part_id=part_id, at=at: self._load(acq, name, part_id, at))
-
-    def _free(self, part_id: str) -> str:
-        name, n = part_id, 2
-        while self.taken(name) and n < 100_000:
-            name, n = f"{part_id}-{n}", n + 1
-        return name
-
-    @staticmethod
-    def _load(acq: Acquisition, name: str, part_id: str, at: str) -> Any:
-        capture = acq.load()
-        meta = dict(capture.metadata)
-        if part_id:
-            meta["part_id"] = part_id
-        meta["timestamp"] = at
-        return dataclasses.replace(capture, name=name, metadata=meta)
-
-    def close(self) -> None:
-        self._inner.close()
 
 
 class InspectorServer:
@@ -197,8 +106,6 @@ class InspectorServer:
     def __init__(self, recipe: str | os.PathLike[str], outdir: str | os.PathLike[str], settings: ServerSettings, *,
                  pm: PluginManager | None = None, log: Callable[[str], None] | None = None,
                  env: dict[str, str] | None = None, warm_up: bool = True) -> None:
-        from inspector.manager import create_plugin_manager
-
         self.settings = settings
         self.endpoint = settings.endpoint
         parse_endpoint(self.endpoint)
@@ -225,7 +132,7 @@ class InspectorServer:
             raise RecipeError(f"recipes folder {self.recipes_dir}: not a folder")
         self._session = self._open_session(recipe)
         self.recipe_name = recipe.stem
-        self._job: _Job | None = None
+        self._job: Job | None = None
         self._part_id = ""  # the PartId variable's value (what a Trigger edge inspects)
         self._records: list[dict[str, Any]] = []
         self._continuous = False
@@ -252,8 +159,6 @@ class InspectorServer:
         session = Session.open(path, self.outdir, pm=self.pm)
         # A PLC has no login: the server runs as the operator, so on a production station only
         # a recipe an engineer approved (file and reference unchanged since) may run (issue 27).
-        from inspector.approval import approval_problem
-
         problem = approval_problem(session.recipe)
         if problem is not None:
             session.close()
@@ -264,7 +169,7 @@ class InspectorServer:
             driver = _open(params)
             if hasattr(driver, "taken"):  # a hot folder names captures after its folders
                 return driver
-            return _PartIdDriver(driver, lambda: self._job, self._journal_named)
+            return PartIdDriver(driver, lambda: self._job, self._journal_named)
 
         driver = dataclasses.replace(session.recipe.driver, spec=dataclasses.replace(spec, open=opened))
         session.recipe = dataclasses.replace(session.recipe, driver=driver)
@@ -277,6 +182,12 @@ class InspectorServer:
             return sorted(p.stem for p in self.recipes_dir.glob("*.toml") if p.is_file() and name_problem(p.stem) is None)
         except OSError:
             return []
+
+    @property
+    def writer(self) -> str | None:
+        """The user allowed to write and call (None: nobody but, with ``anonymous_write``,
+        anonymous clients)."""
+        return self._creds.user if self._creds is not None else None
 
     @property
     def counter(self) -> int:
@@ -292,47 +203,11 @@ class InspectorServer:
         quiet_library_logs()
         self._loop = asyncio.get_running_loop()
         self._lock_file = lock_outdir(self.outdir)  # one server per result folder: one journal
-        users = UserManager(self._creds, self.log)
-        server = Server(user_manager=users)
-        await server.init()
-        check_logins_off_the_loop(server.iserver, users)  # PBKDF2 in a worker thread: reads go on
-        server.set_endpoint(self.endpoint)
-        server.set_server_name("Inspector")
-        await server.set_application_uri(SERVER_URI)
-        server.set_security_policy(_POLICIES[self.settings.security], permission_ruleset=Rules(self.settings.anonymous_write))
-        tokens: list[type] = [ua.AnonymousIdentityToken]
-        if self._creds is not None:
-            tokens.append(ua.UserNameIdentityToken)
-        server.set_identity_tokens(tokens)
-        if self._pki is not None:
-            cert, key, trusted = self._pki
-            await server.load_certificate(str(cert))
-            await server.load_private_key(str(key))
-            server.set_certificate_validator(await validator(trusted))
-        idx = await server.register_namespace(model.NAMESPACE)
-        self.namespace_index = idx
-        obj = await server.nodes.objects.add_object(ua.NodeId(model.OBJECT, idx), ua.QualifiedName(model.OBJECT, idx))
-        for v in model.VARIABLES:
-            initial = v.initial
-            if v.name == "RecipeName":
-                initial = self.recipe_name
-            elif v.name == "Recipes":
-                initial = self.recipe_names()
-            node = await obj.add_variable(ua.NodeId(model.node_id(v.name), idx), ua.QualifiedName(v.name, idx),
-                                          ua.Variant(initial, _VT[v.type]))
-            await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(v.doc))))
-            if v.access == "rw":
-                await node.set_writable()
-                self._inputs[node.nodeid] = v.name
-            self._nodes[v.name] = node
+        server = await secured_server(self.settings, self._creds, self._pki, self.log)
         handlers = {"StartSingleJob": self._m_start_single, "StartContinuous": self._m_start_continuous,
                     "Stop": self._m_stop, "Abort": self._m_abort, "Reset": self._m_reset}
-        for m in model.METHODS:
-            args = [ua.Argument(Name=n, DataType=ua.NodeId(_VT[t].value), ValueRank=-1, Description=ua.LocalizedText(d))
-                    for n, t, d in m.inputs]
-            node = await obj.add_method(ua.NodeId(model.node_id(m.name), idx), ua.QualifiedName(m.name, idx),
-                                        handlers[m.name], args, [])
-            await node.write_attribute(ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(m.doc))))
+        self.namespace_index, self._nodes, self._inputs = await add_model(server, self.recipe_name, self.recipe_names(),
+                                                                          handlers)
         server.subscribe_server_callback(CallbackType.PreWrite, self._pre_write)
         if self._warm_up:
             self.warm_up_s = await self._loop.run_in_executor(self._executor, self._warm)
@@ -368,10 +243,7 @@ class InspectorServer:
     async def _set(self, name: str, value: Any) -> None:
         """Write variable ``name`` (server side: no permission check, subscribers notified)."""
         assert self._server is not None
-        v = model.variable(name)
-        now = datetime.now(UTC)
-        dv = ua.DataValue(ua.Variant(value, _VT[v.type]), SourceTimestamp=now, ServerTimestamp=now)
-        await self._server.write_attribute_value(self._nodes[name].nodeid, dv)
+        await self._server.write_attribute_value(self._nodes[name].nodeid, data_value(name, value))
 
     async def _set_state(self, state: str, *, busy: bool) -> None:
         self._state = state
@@ -384,7 +256,7 @@ class InspectorServer:
         self.log(f"refused: {text}")
         if self._server is not None:
             await self._set("ErrorText", text)
-        return ua.StatusCode(code)
+        return ua.StatusCode(ua.UInt32(code))
 
     # -- inputs: writes ---------------------------------------------------------------------
     async def _pre_write(self, event: Any, _dispatcher: Any) -> None:
@@ -440,7 +312,7 @@ class InspectorServer:
     async def _trigger(self, part_id: str, *, via: str) -> None:
         """Start one cycle for ``part_id`` (checked by the caller: not busy, a valid id)."""
         self._busy = True
-        job = _Job(part_id, _now(), time.perf_counter())
+        job = Job(part_id, now(), time.perf_counter())
         self._job = job
         await self._journaled(self._journal.accepted, part_id, job.triggered_at)  # before the PLC hears Good
         await self._set("ErrorText", "")
@@ -453,7 +325,7 @@ class InspectorServer:
         assert self._loop is not None
         self._task = self._loop.create_task(self._single(job))
 
-    async def _single(self, job: _Job) -> None:
+    async def _single(self, job: Job) -> None:
         assert self._loop is not None
         recovered, self._recovered = self._recovered, None  # only the first trigger after a restart
         try:
@@ -470,7 +342,7 @@ class InspectorServer:
         self._job = None
         self._busy = False  # last: until here a trigger is refused, never mixed into this end
 
-    async def _republish(self, job: _Job, rec: dict[str, Any]) -> dict[str, Any]:
+    async def _republish(self, job: Job, rec: dict[str, Any]) -> dict[str, Any]:
         """The PLC's re-trigger of the part a restart recovered: that result again, not a
         second inspection (no ``PartId-2``, no second history row)."""
         capture = rec.get("capture") or ""
@@ -533,13 +405,9 @@ class InspectorServer:
         """Capture ``name``'s result as the kill left it: its record (the history row added
         when it lacks one), or None when no result was written (what a write in progress left
         is removed)."""
-        from inspector import outputs
-        from inspector.errors import CaptureError
-        from inspector.session import RunSummary
-
         try:
             folder = outputs.result_folder(self.outdir, name)
-            outputs._clear_leftovers(folder)  # a kill inside write_result: its .NAME.partial (and .old) folder
+            outputs.clear_leftovers(folder)  # a kill inside write_result: its .NAME.partial (and .old) folder
         except (CaptureError, OSError) as e:
             self.log(f"warning: recovering {printable(name)}: {_one_line(e)}")
             return None
@@ -551,30 +419,23 @@ class InspectorServer:
             self.log(f"warning: recovering {printable(name)}: {folder / outputs.RESULT_JSON} cannot be read ({e})")
             return None
         if "history" in self.pm.plugin_names():
-            from inspector.history_store import recorded
-
             if recorded(self.outdir, name) is False:  # killed before its row: the hooks that record it, now
                 recipe = self._session.recipe
                 self.pm.on_run_start(recipe, self.outdir, "serve recovery")
                 self.pm.on_result(result, folder)
                 self.pm.on_run_end(recipe, self.outdir, RunSummary({result.verdict: 1}, "done", self.outdir))
                 self.log(f"recovered: {printable(name)}: its history row added")
-        rec = _record(result, folder)
+        rec = record(result, folder)
         rec["part_id"] = rec["part_id"] or pending["part_id"]
         rec["triggered_at"] = rec["triggered_at"] or pending.get("triggered_at")
         rec["recovered"] = True
-        self.log(f"recovered: {_log_line(result)}")
+        self.log(f"recovered: {log_line(result)}")
         return rec
 
     # -- the worker thread ------------------------------------------------------------------
     def _warm(self) -> float | None:
         """One inspection of a small simulated capture, nothing written (worker thread); its
         seconds, or None when it could not run (best effort: the first part then pays)."""
-        from inspector.runner import inspect_capture
-        from inspector_drivers.sim.simulate import SimParams, simulate
-
-        import numpy as np
-
         t0 = time.perf_counter()
         recipe, ref = self._session.recipe, self._session.reference
         part = recipe.reference.removeprefix("builtin:") if recipe.reference else "cube30"
@@ -592,7 +453,7 @@ class InspectorServer:
             return None
         return time.perf_counter() - t0
 
-    def _run_single(self, job: _Job) -> tuple[dict[str, Any], bool]:
+    def _run_single(self, job: Job) -> tuple[dict[str, Any], bool]:
         """One ``Session.run`` of one capture (worker thread): (its record, driver failed)."""
         self._records = []
         t0 = time.perf_counter()
@@ -601,8 +462,6 @@ class InspectorServer:
         except InspectorError as e:
             return self._error_record(job, str(e)), True
         except Exception as e:  # noqa: BLE001 - a bug: one line, the traceback in a file
-            from inspector.tracebacks import save_traceback
-
             where = save_traceback()
             what = f"internal error {type(e).__name__}: {_one_line(e)}"
             self.log(f"error: {what} (traceback in {where})")  # the path for the server's log, not for every reader
@@ -617,7 +476,7 @@ class InspectorServer:
             return self._error_record(job, "aborted before a capture was acquired", verdict="aborted"), False
         return self._error_record(job, "the driver delivered no capture"), True
 
-    def _error_record(self, job: _Job | None, text: str, verdict: str = "error") -> dict[str, Any]:
+    def _error_record(self, job: Job | None, text: str, verdict: str = "error") -> dict[str, Any]:
         return {"part_id": job.part_id if job else "", "capture": None, "verdict": verdict, "error": _one_line(text),
                 "recipe": self._session.recipe.name, "inspection_s": None, "worst_deviation_mm": None,
                 "defect_count": 0, "defects": [], "result_dir": None,
@@ -632,8 +491,8 @@ class InspectorServer:
         if not isinstance(event, Inspected):
             return
         result, folder = event.outcome.result, event.folder
-        rec = _record(result, folder)
-        self.log(_log_line(result))
+        rec = record(result, folder)
+        self.log(log_line(result))
         if self._continuous and self._loop is not None:
             rec["cycle_s"] = result.timings_s.get("total")
             asyncio.run_coroutine_threadsafe(self._publish(rec), self._loop).result()
@@ -706,7 +565,7 @@ class InspectorServer:
     # -- methods ------------------------------------------------------------------------------
     async def _m_start_single(self, parent: Any, *args: Any) -> Any:
         if len(args) != 1 or not isinstance(args[0], ua.Variant) or args[0].VariantType != ua.VariantType.String:
-            return ua.StatusCode(ua.StatusCodes.BadTypeMismatch)
+            return ua.StatusCode(ua.UInt32(ua.StatusCodes.BadTypeMismatch))
         part_id = args[0].Value or ""
         why = part_id_problem(part_id)
         if why is not None:
@@ -774,52 +633,6 @@ class InspectorServer:
             await stop.wait()
         finally:
             await self.stop()
-
-
-def _record(result: Any, folder: Path | None) -> dict[str, Any]:
-    """A result as ``LastResult`` tells it (JSON-safe, small)."""
-    meta = dict(result.metadata or {})
-    worst = None
-    summary = result.summary
-    dev = summary.deviation_mm if summary is not None else None
-    if dev is not None:
-        lo, hi = _finite(dev.min), _finite(dev.max)
-        if lo is not None and hi is not None:
-            worst = hi if abs(hi) >= abs(lo) else lo
-    defects = [{"kind": d.kind, "region": d.region, "n_points": int(d.n_points), "worst_mm": _finite(d.worst_mm),
-                "position": [_finite(x) for x in d.position]} for d in result.defects[:_MAX_DEFECTS_LISTED]]
-    part = meta.get("part_id")
-    return {"part_id": "" if part is None else str(part), "capture": result.capture, "verdict": result.verdict,
-            "error": result.error, "recipe": result.recipe, "inspection_s": _finite(result.timings_s.get("total")),
-            "worst_deviation_mm": worst, "defect_count": len(result.defects), "defects": defects,
-            "result_dir": folder.name if folder is not None else None,  # relative to --out: no server path
-            "triggered_at": None if meta.get("timestamp") is None else str(meta["timestamp"]),
-            "calibration": _calibration(result.stats), "characteristics": _characteristics(result)}
-
-
-def _characteristics(result: Any) -> list[dict[str, Any]]:
-    """The result's characteristics as the PLC reads them (issue 28): a few numbers each."""
-    from inspector.characteristics.definitions import rows_of
-
-    keys = ("id", "kind", "measured", "deviation", "lower", "upper", "U", "verdict")
-    return [{k: (_finite(r.get(k)) if k in ("measured", "deviation", "lower", "upper", "U") else r.get(k))
-             for k in keys} for r in rows_of(result)]
-
-
-def _calibration(stats: Any) -> dict[str, Any] | None:
-    """The result's calibration health as ``LastResult`` tells it: the flagged cameras and how
-    far each camera is off (px); None when the part did not check it."""
-    cal = stats.get("calibration") if isinstance(stats, dict) else None
-    if not isinstance(cal, dict) or not isinstance(cal.get("cameras"), dict):
-        return None
-    return {"flagged": [str(n) for n in cal.get("flagged") or ()],
-            "off_px": {str(n): _finite((c or {}).get("off_px")) for n, c in cal["cameras"].items()}}
-
-
-def _log_line(result: Any) -> str:
-    from inspector.outputs import one_line
-
-    return one_line(result)
 
 
 class ServerThread:

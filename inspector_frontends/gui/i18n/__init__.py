@@ -19,6 +19,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from inspector import shift
+from inspector.locale import set_language
+from inspector_frontends.gui import viewmodel
+
 __all__ = ["LANGUAGES", "FOLDER", "choose", "install", "number", "percent"]
 
 #: Languages with a complete translation (English is the source).
@@ -55,10 +59,6 @@ def install(lang: str) -> str:
     (:func:`inspector.locale.set_language`: the PDF report). Returns the language installed
     ("en": none needed)."""
     from PySide6.QtCore import QCoreApplication, QLibraryInfo, QLocale, QTranslator
-
-    from inspector import shift
-    from inspector_frontends.gui import viewmodel
-    from inspector.locale import set_language
 
     app = QCoreApplication.instance()
     assert app is not None, "create the QApplication first"

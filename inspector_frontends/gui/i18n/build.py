@@ -21,16 +21,19 @@ import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from inspector import shift
 from inspector_frontends.gui.i18n import FOLDER, LANGUAGES
 
 __all__ = ["SOURCES", "tool", "collect", "untranslated", "update", "release", "main"]
 
-_PACKAGE = FOLDER.parents[1]  # inspector/
+_GUI = FOLDER.parent  # inspector_frontends/gui/
 
 
 def SOURCES() -> list[Path]:
-    """The files whose texts are translated: the GUI's modules and the shift counters."""
-    return sorted((_PACKAGE / "gui").glob("*.py")) + [_PACKAGE / "shift.py"]
+    """The files whose texts are translated: the GUI's modules (every ``*.py`` of
+    ``inspector_frontends/gui/``: a new module is listed by itself) and the shift counters
+    (:mod:`inspector.shift`)."""
+    return sorted(_GUI.glob("*.py")) + [Path(shift.__file__)]
 
 
 def tool(name: str) -> str:

@@ -8,7 +8,6 @@ import os
 
 import pytest
 
-
 NO_DISPLAY = None
 if os.environ.get("QT_QPA_PLATFORM", "xcb") not in ("xcb", ""):
     NO_DISPLAY = f"QT_QPA_PLATFORM={os.environ['QT_QPA_PLATFORM']}: VTK's window needs a real X display"

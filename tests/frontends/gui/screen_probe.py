@@ -43,9 +43,9 @@ def main(argv: list[str]) -> int:
     from PySide6.QtTest import QTest
     from PySide6.QtWidgets import QAbstractButton, QApplication
 
+    from inspector.shift import ShiftSettings
     from inspector_frontends.gui.i18n import install
     from inspector_frontends.gui.window import MainWindow
-    from inspector.shift import ShiftSettings
 
     app = QApplication([sys.argv[0]])  # noqa: F841 - kept alive until the end
     install(args.lang)

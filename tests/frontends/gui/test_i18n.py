@@ -92,9 +92,9 @@ def _untranslated(en: list[tuple[str, str]], other: list[tuple[str, str]], lang:
 
 
 def _dialogs(parent):
+    from inspector_frontends.gui.cameras import CameraDialog
     from inspector_frontends.gui.editor import LoginDialog
     from inspector_frontends.gui.viewmodel import CameraThumb
-    from inspector_frontends.gui.widgets import CameraDialog
 
     thumb = CameraThumb("cam03", np.zeros((8, 8), np.uint8), 1.0, np.zeros(2), None, np.zeros((0, 2)), False, 0.0)
     return [LoginDialog(parent), CameraDialog(thumb, parent)]

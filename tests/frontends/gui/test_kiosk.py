@@ -20,8 +20,8 @@ PASSWORD = "kiosk-engineer-1"
 
 @pytest.fixture
 def kiosk(qtbot, tmp_path):
-    from inspector_frontends.gui.window import MainWindow
     from inspector.roles import set_password
+    from inspector_frontends.gui.window import MainWindow
 
     set_password(PASSWORD, config_dir=tmp_path / "config")
     w = MainWindow(DEMO, tmp_path / "out", config_dir=tmp_path / "config", kiosk=True)

@@ -3,7 +3,7 @@ the same rows (a history made by real inspections: the CLI's, then one of the wi
 
 from __future__ import annotations
 
-from datetime import datetime, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
@@ -16,10 +16,10 @@ DEMO = ROOT / "recipes" / "demo.toml"
 
 
 def test_the_shift_panel_counts_what_the_history_has(qtbot, tmp_path, sim_captures):
+    from inspector.history_store import read_history
+    from inspector.shift import ShiftSettings
     from inspector_frontends.cli import main
     from inspector_frontends.gui.window import MainWindow
-    from inspector.shift import ShiftSettings
-    from inspector.history_store import read_history
     from inspector_plugins.history import tally
 
     out = tmp_path / "out"
@@ -61,10 +61,10 @@ def test_the_shift_panel_names_the_worst_characteristics(qtbot, tmp_path):
     first, then not measurable, then the most of the tolerance used), as `history --shift`."""
     from datetime import timedelta
 
-    from inspector_frontends.gui.widgets import ShiftPanel
     from inspector.history_store import record
     from inspector.model import InspectionResult
     from inspector.shift import ShiftSettings, shift_counters
+    from inspector_frontends.gui.history_strip import ShiftPanel
 
     t0 = datetime(2026, 12, 3, 6, 0, tzinfo=UTC)
     for k, (d, t) in enumerate([(36.002, 6.004), (36.060, None), (35.990, 6.012)]):

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from inspector_frontends.gui.viewmodel import from_folder, from_outcome, reason_text
 from inspector.manager import create_plugin_manager
 from inspector.recipe import load_recipe
 from inspector.reference import Reference
 from inspector.runner import inspect_capture
+from inspector_frontends.gui.viewmodel import from_folder, from_outcome, reason_text
 
 pytestmark = pytest.mark.slow
 DEMO = Path(__file__).resolve().parents[3] / "recipes" / "demo.toml"
@@ -51,8 +51,8 @@ def test_a_camera_whose_silhouette_disagrees_is_flagged(sim_captures):
 
 
 def test_views_from_an_inspection_and_from_its_folder_agree(sim_captures, tmp_path):
-    from inspector.outputs import write_result
     from inspector.capture_folder import read_capture
+    from inspector.outputs import write_result
 
     outcome, ref = _inspect(read_capture(sim_captures["notched"]))
     folder = write_result(outcome.result, tmp_path)
@@ -83,10 +83,10 @@ def test_a_camera_the_calibration_health_flags_is_marked(sim_captures, tmp_path)
     the flagged camera too."""
     from scipy.spatial.transform import Rotation
 
-    from inspector_frontends.gui.viewmodel import calibration_flags
+    from inspector.capture_folder import read_capture
     from inspector.model import Rig
     from inspector.outputs import write_result
-    from inspector.capture_folder import read_capture
+    from inspector_frontends.gui.viewmodel import calibration_flags
 
     cap = read_capture(sim_captures["good"])
     name = cap.rig.names[7]

@@ -32,11 +32,11 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
 from inspector import hookimpl
 from inspector.errors import RecipeError
+from inspector.history_store import read_history
 from inspector_frontends.opcua import model
 from inspector_frontends.opcua.config import ServerSettings, credentials, load_settings, parse_endpoint
 from inspector_frontends.opcua.security import CLIENT_URI, make_certificate, make_pki
 from inspector_frontends.opcua.server import InspectorServer, ServerThread, part_id_problem
-from inspector.history_store import read_history
 
 ROOT = Path(__file__).resolve().parents[3]
 RECIPES = Path(__file__).resolve().parent / "opcua_recipes"
@@ -368,7 +368,7 @@ def test_the_calibration_state_is_published_with_the_result(cell):
     """A result whose calibration health flags a camera sets CalibrationOk false and names it,
     before ResultCounter; one that did not check it (an error) leaves the state as it was."""
     from inspector.model import InspectionResult
-    from inspector_frontends.opcua.server import _record
+    from inspector_frontends.opcua.records import record
 
     def published(flagged: list[str] | None) -> dict:
         stats = {} if flagged is None else {"calibration": {
@@ -377,7 +377,7 @@ def test_the_calibration_state_is_published_with_the_result(cell):
         res = InspectionResult(capture="CAL", recipe="opcua-fast", verdict="pass" if flagged is not None else "error",
                                error=None if flagged is not None else "segment: broken", timings_s={"total": 0.1},
                                stats=stats)
-        rec = _record(res, None)
+        rec = record(res, None)
         asyncio.run_coroutine_threadsafe(cell.server._publish(rec), cell.server._loop).result(WAIT_S)
         return rec
 
@@ -403,7 +403,7 @@ def test_the_characteristics_are_published_with_the_result(cell):
     """A result with measured characteristics (issue 28): their values and the NOK ids, before
     ResultCounter; a result without any publishes an empty list."""
     from inspector.model import InspectionResult
-    from inspector_frontends.opcua.server import _record
+    from inspector_frontends.opcua.records import record
 
     rows = [{"id": "1", "kind": "diameter", "nominal": 36.0, "measured": 35.982, "deviation": -0.018, "lower": -0.05,
              "upper": 0.05, "u": 0.0015, "U": 0.003, "verdict": "ok", "points": 812, "reason": None},
@@ -415,7 +415,7 @@ def test_the_characteristics_are_published_with_the_result(cell):
     def published(chars: list | None) -> None:
         res = InspectionResult(capture="CHR", recipe="opcua-fast", verdict="fail" if chars else "pass", error=None,
                                timings_s={"total": 0.1}, extras={} if chars is None else {"characteristics": chars})
-        asyncio.run_coroutine_threadsafe(cell.server._publish(_record(res, None)), cell.server._loop).result(WAIT_S)
+        asyncio.run_coroutine_threadsafe(cell.server._publish(record(res, None)), cell.server._loop).result(WAIT_S)
 
     async def main():
         async with plc(cell) as p:

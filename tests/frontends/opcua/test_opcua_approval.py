@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from inspector import roles
+from inspector import roles, roles_password
 from inspector_frontends.cli import main
 
 PASSWORD = "correct-horse-42"
@@ -21,7 +21,7 @@ DEFAULT = Path(__file__).resolve().parents[3] / "recipes" / "default.toml"
 def production(tmp_path, monkeypatch):
     """A private configuration folder, the engineer password set, the station in production."""
     monkeypatch.setenv("INSPECTOR_CONFIG_DIR", str(tmp_path / "config"))
-    monkeypatch.setattr(roles, "PBKDF2_ITERATIONS", 200_000)
+    monkeypatch.setattr(roles_password, "PBKDF2_ITERATIONS", 200_000)  # hashing is the slow part
     roles.set_password(PASSWORD)
     monkeypatch.setattr(sys, "stdin", io.StringIO(f"{PASSWORD}\n"))
     assert main(["roles", "production", "on", "--who", "erin"]) == 0
@@ -49,8 +49,8 @@ def test_serve_refuses_an_unapproved_recipe_on_a_production_station(production, 
 
 def test_serve_accepts_the_recipe_once_approved_and_refuses_it_when_changed(production, tmp_path, monkeypatch, capsys):
     from inspector.approval import approval_problem
-    from inspector.recipe import load_recipe
     from inspector.manager import create_plugin_manager
+    from inspector.recipe import load_recipe
 
     recipe = _recipe(tmp_path / "recipes")
     monkeypatch.setattr(sys, "stdin", io.StringIO(f"{PASSWORD}\n"))

@@ -31,9 +31,9 @@ pytest.importorskip("asyncua", reason="asyncua is not installed (make installs i
 
 from asyncua import Client, ua
 
+from inspector.history_store import read_history, recorded
 from inspector_frontends.opcua import model
 from inspector_frontends.opcua.journal import JOURNAL_FILE
-from inspector.history_store import read_history, recorded
 
 RECIPES = Path(__file__).resolve().parent / "opcua_recipes"
 INSPECTOR = str(Path(sys.executable).parent / "inspector")
