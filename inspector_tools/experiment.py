@@ -42,9 +42,20 @@ from typing import Any
 from inspector import hookimpl
 from inspector.errors import RecipeError
 from inspector.registry import CommandRegistry, CommandSpec
+
 # The command's three parts: the cases and task specs, their execution on Dask, the report.
-from inspector_tools.experiment_cases import (CASES, CSV_COLUMNS, METHODS, OBJECT_VARIANTS, PAPER_TABLE1, PRESETS,
-                                              check_pipeline, make_specs, pipeline, resolve_cases)
+from inspector_tools.experiment_cases import (
+    CASES,
+    CSV_COLUMNS,
+    METHODS,
+    OBJECT_VARIANTS,
+    PAPER_TABLE1,
+    PRESETS,
+    check_pipeline,
+    make_specs,
+    pipeline,
+    resolve_cases,
+)
 from inspector_tools.experiment_execution import CsvSink, execute, run_task, start_client, write_csvs
 from inspector_tools.experiment_report import ratio_ranges, write_plots, write_summary
 

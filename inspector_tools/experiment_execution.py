@@ -17,8 +17,16 @@ from inspector.manager import create_plugin_manager
 from inspector.params import build_params
 from inspector.reference import Reference
 from inspector_drivers.sim.simulate import SimParams, simulate
-from inspector_tools.experiment_cases import (CASES, CSV_COLUMNS, METHODS, OBJECT_VARIANTS, Case, _method_stages, err_line,
-                                              prefix_len)
+from inspector_tools.experiment_cases import (
+    CASES,
+    CSV_COLUMNS,
+    METHODS,
+    OBJECT_VARIANTS,
+    Case,
+    _method_stages,
+    err_line,
+    prefix_len,
+)
 
 __all__ = ["run_task", "error_rows", "CsvSink", "write_csvs", "sort_key", "execute", "start_client"]
 

@@ -100,7 +100,7 @@ def make_plugin_manager(names: Sequence[str] = (), modules: Sequence[object] = (
     ``strict``: a named plugin that is not installed, does not load or reports a problem
     raises :class:`~inspector.errors.PluginError` with its one-line message.
     """
-    # Not at the top: inspector.manager loads numpy and inspector.model, which a pytest session
+    # lazy: inspector.manager loads numpy and inspector.model, which a pytest session
     # that never uses these fixtures should not pay for (tests/tools/test_plugin_kit.py).
     from inspector.manager import create_plugin_manager
 
@@ -222,6 +222,7 @@ class RunResult:
     def history(self) -> list[dict[str, Any]]:
         """The run's ``history.sqlite`` rows, oldest first (the built-in ``history`` plugin),
         their ``extras`` and ``metadata`` JSON columns decoded."""
+        # lazy: the history store loads numpy (inspector.model), which pytest loading this plugin must not
         from inspector.history_store import read_history
 
         rows = read_history(self.outdir)

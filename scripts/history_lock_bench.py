@@ -65,8 +65,8 @@ def _phase(pm, recipe, out: Path, cell: str, seconds: float, inspect_s: float, l
     """Record parts for ``seconds`` (with the table locked when ``lock_url``); (parts, seconds, spooled at the end)."""
     import psycopg
 
-    from inspector.model import InspectionResult
     from inspector import history_store
+    from inspector.model import InspectionResult
 
     locker = None
     if lock_url is not None:
@@ -97,9 +97,9 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=60.0, help="length of each phase (s)")
     ap.add_argument("--inspect-s", type=float, default=0.5, help="simulated inspection time per part (s)")
     args = ap.parse_args()
+    from inspector import history_store
     from inspector.manager import create_plugin_manager
     from inspector.recipe import parse_recipe
-    from inspector import history_store
     from inspector_plugins import history
 
     root = Path(tempfile.mkdtemp(prefix="lock-bench-"))

@@ -33,8 +33,8 @@ def recipes_dir() -> Path:
 
 
 def _simulate_to(folder: Path, **params):
-    from inspector.params import build_params
     from inspector.capture_folder import save_capture
+    from inspector.params import build_params
     from inspector_drivers.sim.simulate import SimParams, simulate
 
     return save_capture(simulate(build_params(SimParams, params, "test"), 0, name=folder.name), folder, overwrite=True)

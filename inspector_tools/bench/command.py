@@ -55,8 +55,6 @@ measurements live beside it: :mod:`~inspector_tools.bench.cycles`, :mod:`~inspec
 
 from __future__ import annotations
 
-from __future__ import annotations
-
 import argparse
 import sys
 import tempfile
@@ -65,12 +63,29 @@ from typing import TYPE_CHECKING, Any
 
 from inspector import hookimpl
 from inspector.errors import InspectorError
-from inspector_tools.bench.common import (check_args, compile_kernels, default_reference, machine, recipes_dir,
-                                          simulate_capture, write_figures)
+from inspector_tools.bench.common import (
+    check_args,
+    compile_kernels,
+    default_reference,
+    machine,
+    recipes_dir,
+    simulate_capture,
+    write_figures,
+)
 from inspector_tools.bench.report import print_report
-from inspector_tools.bench.targets import (CARVE_RATIO_TARGET, CYCLE_TARGET_5MP_S, CYCLE_TARGET_S, MEMORY_TARGET_5MP_MB,
-                                           MEMORY_TARGET_MB, SizeAction, cycle_target_s, image_size, memory_target_mb,
-                                           parse_size, targets)
+from inspector_tools.bench.targets import (
+    CARVE_RATIO_TARGET,
+    CYCLE_TARGET_5MP_S,
+    CYCLE_TARGET_S,
+    MEMORY_TARGET_5MP_MB,
+    MEMORY_TARGET_MB,
+    SizeAction,
+    cycle_target_s,
+    image_size,
+    memory_target_mb,
+    parse_size,
+    targets,
+)
 
 if TYPE_CHECKING:
     from inspector.registry import CommandRegistry
@@ -288,7 +303,7 @@ def acquisition_latency(n: int, triggers: int, progress=lambda s: None) -> dict[
 @hookimpl
 def inspector_register_commands(registry: CommandRegistry) -> None:
     """``inspector bench``: a built-in plugin (entry point ``bench``), like any command."""
-    # Not at the top: inspector.registry loads numpy (inspector.model), and importing this
+    # lazy: inspector.registry loads numpy (inspector.model), and importing this
     # module stays free of numpy (tests/tools/test_bench.py::test_import_is_light).
     from inspector.registry import CommandSpec
 

@@ -43,13 +43,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-from array import array
 import gc
 import math
 import statistics
 import sys
 import tempfile
 import time
+from array import array
 from pathlib import Path
 from typing import Any
 

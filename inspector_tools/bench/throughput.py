@@ -17,8 +17,7 @@ from inspector.errors import RecipeError
 from inspector.runner import Outcome, record_outcome
 from inspector.session import Session, Source
 from inspector_frontends.distributed import connect, inspect_folder, run_on_cluster, worker_setup
-from inspector_tools.bench.common import (check_args, compile_kernels, default_reference, machine, simulate_capture,
-                                          write_figures)
+from inspector_tools.bench.common import check_args, compile_kernels, default_reference, machine, simulate_capture, write_figures
 from inspector_tools.bench.targets import image_size
 
 __all__ = ["dask_throughput"]

@@ -29,8 +29,17 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inspector_tools.feasibility.stats import (CG_MIN, Gauge, PodFit, binomial_upper, gauge_type1, grouped_mean_quantile,
-                                         majority_share, observed_fraction, pod_fit)
+from inspector_tools.feasibility.stats import (
+    CG_MIN,
+    Gauge,
+    PodFit,
+    binomial_upper,
+    gauge_type1,
+    grouped_mean_quantile,
+    majority_share,
+    observed_fraction,
+    pod_fit,
+)
 
 if TYPE_CHECKING:
     from inspector_tools.feasibility.study import Study

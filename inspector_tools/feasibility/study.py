@@ -51,9 +51,9 @@ from inspector_tools.experiment_cases import PRESETS
 from inspector_tools.experiment_execution import execute, start_client
 
 if TYPE_CHECKING:
-    from inspector_tools.feasibility.surface import Regions, SurfaceMap
     from inspector.model import Rig
     from inspector.recipe import Recipe
+    from inspector_tools.feasibility.surface import Regions, SurfaceMap
 
 __all__ = ["Study", "add_parser", "run", "prepare", "make_specs", "run_sim", "SimCache", "sim_seed",
            "rig_blind_cameras"]
@@ -209,9 +209,9 @@ def _rig_file(path: str, flag: str) -> tuple[Rig, str]:
 
 def prepare(args: argparse.Namespace) -> Study:
     """Validate the command's inputs; RecipeError in one line for anything wrong (exit 2)."""
-    from inspector_tools.feasibility.surface import build_map, default_element_mm
     from inspector.parts import load_reference
     from inspector.recipe import parse_recipe, read_recipe_toml
+    from inspector_tools.feasibility.surface import build_map, default_element_mm
 
     for flag, value, least in (("--poses", args.poses, 2), ("--defect-captures", args.defect_captures, 0),
                                ("--defects-per-capture", args.defects_per_capture, 1), ("--workers", args.workers, 1),
@@ -421,8 +421,8 @@ def _worker_context(spec: Mapping[str, Any]) -> dict[str, Any]:
     key = spec["key"]
     if key in _WORKER:
         return _WORKER[key]
-    from inspector.recipe import parse_recipe
     from inspector.capture_folder import parse_rig
+    from inspector.recipe import parse_recipe
 
     cfg = spec["study"]
     pm = create_plugin_manager()

@@ -16,7 +16,6 @@ from inspector.errors import InputError
 from inspector.limits import limit, load_json, read_bounded
 from inspector.model import Rig
 
-
 #: Tolerance on ``R R^T = I`` for an imported rotation (re-orthonormalised below it).
 _ROT_TOL = 1e-4
 _IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".exr", ".webp", ".ppm", ".pgm")

@@ -75,9 +75,9 @@ from pathlib import Path
 from typing import Any
 
 from inspector.errors import InputError
+
 # The formats, one module each (their shared helpers in importers.common), and the validation.
-from inspector_tools.importers.common import fill_holes
-from inspector_tools.importers.common import _load_json_file, _read_text  # noqa: F401 - the tests import them from here
+from inspector_tools.importers.common import _load_json_file, _read_text, fill_holes  # noqa: F401 - the tests import them from here
 from inspector_tools.importers.idr import decompose_projection, import_idr
 from inspector_tools.importers.middlebury import MIDDLEBURY_CLOSE_PX, MIDDLEBURY_LEVEL, import_middlebury
 from inspector_tools.importers.nerf import import_nerf

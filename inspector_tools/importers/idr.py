@@ -9,9 +9,20 @@ import numpy as np
 
 from inspector.errors import InputError
 from inspector.model import Camera, Rig
-from inspector_tools.importers.common import (_alpha_to_grey, _image_size, _label, _list_images, _load_npz,
-                                              _mask_to_coverage, _read_image, _rotation, _scale_of, _unique_names,
-                                              _units_note, _write)
+from inspector_tools.importers.common import (
+    _alpha_to_grey,
+    _image_size,
+    _label,
+    _list_images,
+    _load_npz,
+    _mask_to_coverage,
+    _read_image,
+    _rotation,
+    _scale_of,
+    _unique_names,
+    _units_note,
+    _write,
+)
 
 __all__ = ["decompose_projection", "import_idr"]
 

@@ -9,8 +9,18 @@ import numpy as np
 
 from inspector.errors import InputError
 from inspector.model import Camera, Rig
-from inspector_tools.importers.common import (_label, _pick_sources, _read_image, _read_text, _rotation, _scale_of,
-                                              _targets, _unique_names, _units_note, _write)
+from inspector_tools.importers.common import (
+    _label,
+    _pick_sources,
+    _read_image,
+    _read_text,
+    _rotation,
+    _scale_of,
+    _targets,
+    _unique_names,
+    _units_note,
+    _write,
+)
 
 __all__ = ["MIDDLEBURY_LEVEL", "MIDDLEBURY_CLOSE_PX", "import_middlebury"]
 

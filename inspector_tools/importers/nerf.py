@@ -12,9 +12,21 @@ import numpy as np
 
 from inspector.errors import InputError
 from inspector.model import Camera, Rig
-from inspector_tools.importers.common import (_alpha_to_grey, _check_size, _find_image, _label, _load_json_file,
-                                              _pick_sources, _read_image, _rotation, _scale_of, _targets, _unique_names,
-                                              _units_note, _write)
+from inspector_tools.importers.common import (
+    _alpha_to_grey,
+    _check_size,
+    _find_image,
+    _label,
+    _load_json_file,
+    _pick_sources,
+    _read_image,
+    _rotation,
+    _scale_of,
+    _targets,
+    _unique_names,
+    _units_note,
+    _write,
+)
 
 __all__ = ["import_nerf"]
 

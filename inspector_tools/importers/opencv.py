@@ -10,8 +10,18 @@ import numpy as np
 
 from inspector.errors import InputError
 from inspector.model import Camera, Rig
-from inspector_tools.importers.common import (_check_size, _find_image, _label, _read_image, _read_text, _rotation,
-                                              _scale_of, _unique_names, _units_note, _write)
+from inspector_tools.importers.common import (
+    _check_size,
+    _find_image,
+    _label,
+    _read_image,
+    _read_text,
+    _rotation,
+    _scale_of,
+    _unique_names,
+    _units_note,
+    _write,
+)
 
 __all__ = ["import_opencv"]
 

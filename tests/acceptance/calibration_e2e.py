@@ -54,6 +54,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # siblings, when run as a script
 
 from calibration_common import ROOT, Measurer, inspector_exe, relax_watchdog, simulate_parts
+
 TARGET = ROOT / "examples" / "calibration" / "charuco_cube.toml"
 BAR_RMS_PX, BAR_F_PCT, BAR_CENTRE_MM, BAR_BCPS_PX = 0.05, 0.1, 0.5, 0.01
 
@@ -153,8 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
 
     from inspector.calibration.command import write_rig
-    from inspector.kernels.calibration import compare_rigs
     from inspector.capture_folder import read_rig
+    from inspector.kernels.calibration import compare_rigs
 
     relax_watchdog()
     work = args.work

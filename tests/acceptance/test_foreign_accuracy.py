@@ -16,14 +16,13 @@ import ast
 import json
 from pathlib import Path
 
-import numpy as np
-import pytest
-import shapely
-import trimesh
-
 import foreign_capture as fc
 import measure as ms
+import numpy as np
+import pytest
 import run_matrix as rm
+import shapely
+import trimesh
 
 HERE = Path(__file__).resolve().parent
 

@@ -8,11 +8,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import foreign_capture as fc
 import numpy as np
+import pose_sweep as ps
 import pytest
 
-import foreign_capture as fc
-import pose_sweep as ps
 from inspector_tools.testing import run_recipe
 
 RECIPE = Path(__file__).resolve().parents[2] / "recipes" / "default.toml"

@@ -7,13 +7,12 @@ from __future__ import annotations
 import json
 import math
 
-import numpy as np
-import pytest
-from scipy.spatial.transform import Rotation
-
 import foreign_capture as fc
 import measure as ms
+import numpy as np
 import pose_sweep as ps
+import pytest
+from scipy.spatial.transform import Rotation
 
 NEAR_SYMMETRIC = ["disc2", "disc3", "disc4", "disc5", "disc6", "disc7", "disc8", "flange", "hub", "keyshaft",
                   "flatshaft", "gear"]

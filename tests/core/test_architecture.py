@@ -112,6 +112,21 @@ def test_ci_runs_the_static_checks():
         assert any(line.startswith(f"{pkg}==") for line in lock), f"{pkg} is not pinned in requirements.lock"
 
 
+def test_pre_commit_runs_the_checks_ci_runs():
+    """.pre-commit-config.yaml's hooks are .ci/run's static-check commands, on the same tools."""
+    import yaml
+
+    config = yaml.safe_load((ROOT / ".pre-commit-config.yaml").read_text())
+    (repo,) = config["repos"]
+    assert repo["repo"] == "local"
+    entries = {h["entry"].removeprefix(".venv/bin/") for h in repo["hooks"]}
+    ci = [line.split("#")[0].strip().removeprefix(".venv/bin/") for line in (ROOT / ".ci" / "run").read_text().splitlines()]
+    checks = {c for c in ci if c and not c.startswith(("set ", "cd ", "make setup", "make test"))}
+    assert entries == checks
+    lock = (ROOT / "requirements.lock").read_text().splitlines()
+    assert any(line.startswith("pre_commit==") for line in lock)
+
+
 def test_one_version_a_licence_and_a_changelog():
     assert PYPROJECT["project"]["dynamic"] == ["version"]
     assert PYPROJECT["tool"]["setuptools"]["dynamic"]["version"] == {"attr": "inspector.__version__"}
@@ -164,3 +179,97 @@ def test_the_wheel_holds_the_recipes_and_installs_a_working_product(tmp_path):
     assert lines[0].startswith(str(target)) and lines[1] == str(target / "inspector" / "recipes")
     assert "demo.toml: OK: recipe 'demo-cube30'" in lines[2]
 
+
+
+#: The product's packages: what "a project import" is.
+_ROOMS = ("inspector", "inspector_plugins", "inspector_drivers", "inspector_frontends", "inspector_tools")
+
+
+def _startup_modules() -> set[str]:
+    """The project modules loaded before any command runs: by ``inspector`` (the CLI and every
+    plugin's registration) and by pytest wherever the product is installed (its ``pytest11``
+    fixtures): measured in a fresh interpreter."""
+    code = ("import sys; from inspector_frontends.cli import build_parser; build_parser(); "
+            "import inspector_tools.testing; "
+            f"print('\\n'.join(m for m in sys.modules if m.split('.')[0] in {_ROOMS!r}))")
+    out = subprocess.run([PY, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT)
+    return set(out.stdout.split())
+
+
+def _is_module(name: str) -> bool:
+    path = ROOT.joinpath(*name.split("."))
+    return path.with_suffix(".py").is_file() or (path / "__init__.py").is_file()
+
+
+def _deferred_imports() -> list[tuple[str, int, str, str]]:
+    """(module, line, imported module, the line's text and the one above) of every project import
+    inside a function body."""
+    found = []
+    for room in _ROOMS:
+        for p in sorted((ROOT / room).rglob("*.py")):
+            mod = ".".join(p.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+            text = p.read_text()
+            lines = text.splitlines()
+            for fn in ast.walk(ast.parse(text)):
+                if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    continue
+                for node in ast.walk(fn):
+                    if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                        # `from inspector import session` imports the module inspector.session
+                        subs = [f"{node.module}.{a.name}" for a in node.names]
+                        names = [s for s in subs if _is_module(s)] or [node.module]
+                    elif isinstance(node, ast.Import):
+                        names = [a.name for a in node.names]
+                    else:
+                        continue
+                    for name in names:
+                        if name.split(".")[0] in _ROOMS:
+                            near = "\n".join(lines[max(0, node.lineno - 4):node.end_lineno])  # the comment above it
+                            found.append((mod, node.lineno, name, near))
+    return found
+
+
+def test_project_imports_sit_at_the_top_unless_start_up_time_says_otherwise():
+    """A project import inside a function is for the start-up's sake only: in a module that
+    ``inspector`` loads before every command, of a module it does not load then (what a command
+    pays when it runs, not every command). Anything else sits at the module's top, or says why
+    in a comment: ``# cycle:`` the import cycle it breaks, ``# lazy:`` the light import a test
+    holds this module to (``import inspector``, the recipe editor's model, the pytest plugin)."""
+    startup = _startup_modules()
+    assert "inspector_frontends.cli" in startup and "inspector.manager" in startup
+    wrong = []
+    for mod, line, name, near in _deferred_imports():
+        if "# cycle:" in near or "# lazy:" in near:
+            continue
+        if mod not in startup:
+            wrong.append(f"{mod}:{line}: {name} (this module is not loaded at start-up: import at the top)")
+        elif name in startup:
+            wrong.append(f"{mod}:{line}: {name} (loaded at start-up anyway: import at the top)")
+    assert wrong == [], f"{len(wrong)} deferred imports:\n" + "\n".join(wrong)
+
+
+#: Numerical kernels allowed past 800 lines: each is one algorithm with its compiled half or its
+#: family of fits, which reads best whole (carving: the octree and its refinement; fits: the
+#: least-squares fits of every feature type; silhouette: segmentation and the sub-pixel contour).
+LONG_MODULES = {"inspector/kernels/carving.py", "inspector/kernels/carving_jit.py", "inspector/kernels/fits.py",
+                "inspector/kernels/silhouette.py"}
+#: Numba kernels allowed past 100 lines: compiled loops, where a call per step costs.
+LONG_FUNCTIONS = {"inspector/kernels/bcps_jit.py:_select_kernel", "inspector/kernels/carving_jit.py:_finest_kernel",
+                  "inspector/kernels/carving_jit.py:_mesh_signs_kernel", "inspector/kernels/silhouette.py:_march_squares"}
+
+
+def test_no_module_over_800_lines_and_no_function_over_100_but_the_listed_kernels():
+    big, long = [], []
+    for room in _ROOMS:
+        for p in sorted((ROOT / room).rglob("*.py")):
+            rel = p.relative_to(ROOT).as_posix()
+            text = p.read_text()
+            if text.count("\n") > 800 and rel not in LONG_MODULES:
+                big.append(f"{rel}: {text.count(chr(10))} lines")
+            for node in ast.walk(ast.parse(text)):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    n = node.end_lineno - node.lineno + 1
+                    if n > 100 and f"{rel}:{node.name}" not in LONG_FUNCTIONS:
+                        long.append(f"{rel}:{node.name}: {n} lines")
+    assert (big, long) == ([], []), f"modules over 800 lines: {big}; functions over 100 lines: {long}"
+    assert sum(1 for line in (ROOT / "inspector_plugins" / "bcps.py").read_text().splitlines()) <= 250

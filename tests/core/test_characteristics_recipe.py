@@ -13,10 +13,10 @@ import pytest
 from scipy.optimize import linprog
 
 from inspector.characteristics.spc import capability
-from inspector_frontends.cli import main
 from inspector.errors import RecipeError
 from inspector.kernels import fits
 from inspector.recipe import load_recipe
+from inspector_frontends.cli import main
 
 HEAD = """
 [recipe]

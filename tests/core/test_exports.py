@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from inspector_frontends.cli import main
 from inspector.outputs import read_ply
+from inspector_frontends.cli import main
 
 DEFAULT = str(Path(__file__).resolve().parents[2] / "recipes" / "default.toml")
 

@@ -14,17 +14,16 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from test_plugin_isolation import make_dist
 
 from inspector import API_VERSION, hookimpl
-from inspector_frontends.cli import main
 from inspector.errors import PluginError, RecipeError
 from inspector.manager import api_problem, create_plugin_manager
 from inspector.params import param
-from inspector_tools.plugin_docs import fixture_names, hook_names, public_names, reference_markdown
 from inspector.recipe import parse_recipe
 from inspector.registry import CommandSpec
-
-from test_plugin_isolation import make_dist
+from inspector_frontends.cli import main
+from inspector_tools.plugin_docs import fixture_names, hook_names, public_names, reference_markdown
 
 ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "docs" / "plugins.md"

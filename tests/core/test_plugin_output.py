@@ -14,7 +14,7 @@ import pytest
 from inspector import hookimpl
 from inspector.errors import PluginError, RecipeError
 from inspector.manager import create_plugin_manager
-from inspector.model import (BcpsPoints, Capture, DeviationStats, Evaluation, EvaluationSummary, RegionSummary, Rig)
+from inspector.model import BcpsPoints, Capture, DeviationStats, Evaluation, EvaluationSummary, RegionSummary, Rig
 from inspector.params import param
 from inspector.recipe import parse_recipe
 from inspector.registry import Acquisition, StageSpec

@@ -67,8 +67,8 @@ def test_min_cameras_above_the_rigs_cameras_is_refused_and_the_notched_part_is_n
 
 
 def test_min_points_beyond_what_a_small_rig_can_give_is_refused(tmp_path, capsys):
-    from inspector.params import build_params
     from inspector.capture_folder import save_capture
+    from inspector.params import build_params
     from inspector_drivers.sim.simulate import SimParams, simulate
 
     # 6 cameras of 128 x 128 px: at most 6 x (127 x 128 + 128 x 127) = 195072 contour points.

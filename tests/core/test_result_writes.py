@@ -84,8 +84,8 @@ def test_a_long_name_has_a_temporary_folder_that_fits(tmp_path):
 def _small_capture(folder: Path) -> Path:
     import cv2
 
-    from inspector.model import Camera, Rig
     from inspector.capture_folder import write_capture
+    from inspector.model import Camera, Rig
 
     img = np.full((48, 64), 220.0, np.float32)
     cv2.circle(img, (32, 24), 12, 30.0, -1)

@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import shutil
 import sqlite3
-from datetime import datetime, timedelta, UTC
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pytest
 
-from inspector_frontends.cli import main
 from inspector.errors import InputError, RecipeError
 from inspector.shift import (
     ShiftSettings,
@@ -22,6 +21,7 @@ from inspector.shift import (
     shift_settings,
     shifts_until,
 )
+from inspector_frontends.cli import main
 
 DEFAULT = str(Path(__file__).resolve().parents[2] / "recipes" / "default.toml")
 UTC = UTC

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
+from inspector.errors import RecipeError
 from inspector_tools.bench import carving, common, cycles, targets
 from inspector_tools.bench import command as bench
-from inspector.errors import RecipeError
 
 RECIPES = Path(__file__).resolve().parents[2] / "recipes"
 

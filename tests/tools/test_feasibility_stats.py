@@ -106,8 +106,8 @@ def test_regions_label_boxes_last_wins_and_patches_by_normal():
 
 
 def test_the_surface_map_partitions_the_reference():
-    from inspector_tools.feasibility.surface import PATCHES, Regions, build_map
     from inspector.parts import make_part
+    from inspector_tools.feasibility.surface import PATCHES, Regions, build_map
 
     cube = make_part("cube30")
     m = build_map(cube.vertices, cube.faces, 2.0, Regions(PATCHES, (), ((-0.1, 0.1),) * 6), seed=1)

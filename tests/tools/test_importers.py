@@ -20,9 +20,11 @@ import numpy as np
 import pytest
 import trimesh
 
+from inspector.capture_folder import read_capture
 from inspector.errors import InputError
 from inspector.model import Camera, Rig
-from inspector.capture_folder import read_capture
+from inspector_drivers.sim.render import render_coverage
+from inspector_drivers.sim.rig import look_at_rotation, sphere_directions
 from inspector_tools.importers.datasets import (
     IMPORTERS,
     add_parser,
@@ -36,8 +38,6 @@ from inspector_tools.importers.datasets import (
     leave_one_out_iou,
     run,
 )
-from inspector_drivers.sim.render import render_coverage
-from inspector_drivers.sim.rig import look_at_rotation, sphere_directions
 
 SHARED = Path(__file__).resolve().parents[3] / "shared"
 DINO = SHARED / "data" / "middlebury-dinoSparseRing"

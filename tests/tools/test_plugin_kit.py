@@ -14,17 +14,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from test_plugin_isolation import make_dist
 
 from inspector import hookimpl
-from inspector_frontends.cli import main
 from inspector.errors import PluginError, RecipeError
 from inspector.manager import create_plugin_manager
 from inspector.params import param
 from inspector.registry import SettingsRegistry, StageRegistry, StageSpec
+from inspector_frontends.cli import main
 from inspector_tools.scaffold import write_plugin
 from inspector_tools.testing import make_plugin_manager
-
-from test_plugin_isolation import make_dist
 
 ROOT = Path(__file__).resolve().parents[2]
 PY = sys.executable
