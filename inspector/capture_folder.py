@@ -61,7 +61,7 @@ import os
 import re
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from datetime import datetime
+from datetime import date, datetime, time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -80,6 +80,7 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "RIG_FILE",
+    "json_default",
     "CAPTURE_FILE",
     "IMAGES_DIR",
     "BACKGROUND_DIR",
@@ -534,7 +535,12 @@ def read_capture(folder: str | os.PathLike[str]) -> Capture:
     )
 
 
-def _to_jsonable(obj: Any) -> Any:
+def json_default(obj: Any) -> Any:
+    """``json.dumps(..., default=json_default)``: numpy arrays and scalars, paths, sets and
+    tuples, datetimes and dates, and read-only mappings as JSON; TypeError for anything else.
+    The one JSON hook of the capture folder and of every tool that writes arrays to JSON."""
+    if isinstance(obj, Mapping):
+        return dict(obj)
     if isinstance(obj, np.ndarray):
         return obj.tolist()
     if isinstance(obj, np.generic):
@@ -543,7 +549,7 @@ def _to_jsonable(obj: Any) -> Any:
         return str(obj)
     if isinstance(obj, (set, frozenset, tuple)):
         return list(obj)
-    if isinstance(obj, datetime):
+    if isinstance(obj, (date, time)):  # datetimes too; TOML dates and times
         return obj.isoformat()
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
@@ -555,7 +561,7 @@ def _write_bytes_atomic(path: Path, data: bytes) -> None:
 
 
 def _write_json(path: Path, data: Any) -> None:
-    text = json.dumps(data, indent=2, default=_to_jsonable, allow_nan=False)
+    text = json.dumps(data, indent=2, default=json_default, allow_nan=False)
     _write_bytes_atomic(path, (text + "\n").encode("utf-8"))
 
 
@@ -645,9 +651,9 @@ def write_capture(
         meta["polarity"] = polarity
     if "polarity" in meta and meta["polarity"] not in POLARITIES:
         raise ValueError(f"polarity must be one of {POLARITIES}, got {meta['polarity']!r}")
-    capture_text = json.dumps(meta, indent=2, default=_to_jsonable, allow_nan=False) if meta else None
+    capture_text = json.dumps(meta, indent=2, default=json_default, allow_nan=False) if meta else None
     info_text = (
-        json.dumps(dict(truth_info), indent=2, default=_to_jsonable, allow_nan=False)
+        json.dumps(dict(truth_info), indent=2, default=json_default, allow_nan=False)
         if truth_info is not None
         else None
     )

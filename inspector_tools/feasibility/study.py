@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from inspector import hookimpl
+from inspector.capture_folder import json_default
 from inspector.errors import CaptureError, InspectorError, RecipeError, ReferenceMeshError
 from inspector.manager import create_plugin_manager
 from inspector.params import build_params
@@ -284,7 +285,7 @@ def prepare(args: argparse.Namespace) -> Study:
         "regions": studied,
         "cluster_radius_mm": cluster_mm,
     }
-    key = hashlib.sha256(json.dumps(_jsonable(config), sort_keys=True).encode()).hexdigest()[:16]
+    key = hashlib.sha256(json.dumps(config, sort_keys=True, default=json_default).encode()).hexdigest()[:16]
     return Study(config, key, recipe, rig, regions, smap, V, F, offset, rig_label)
 
 
@@ -347,22 +348,6 @@ def _study_rig(args: argparse.Namespace, recipe: Recipe, ref: str, rpath: Path, 
     return sim, rig, rig_label, rig_json
 
 
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    if hasattr(obj, "isoformat"):  # TOML dates
-        return obj.isoformat()
-    return obj
-
-
 # --------------------------------------------------------------------------- simulations
 
 
@@ -405,8 +390,8 @@ def make_specs(study: Study, *, keep_captures: int = 0, out: Path | None = None)
                                     "key": study.key, "study": cfg, "offset_mm": [float(x) for x in study.offset_mm],
                                     "placed": _place_defects(study, i) if kind == "defect" else []}
             # What makes this simulation what it is: a record of another one is redone.
-            spec["sim_key"] = hashlib.sha256(json.dumps(_jsonable(
-                [study.key, spec["name"], spec["seed"], spec["placed"]]), sort_keys=True).encode()).hexdigest()[:16]
+            spec["sim_key"] = hashlib.sha256(json.dumps(
+                [study.key, spec["name"], spec["seed"], spec["placed"]], sort_keys=True, default=json_default).encode()).hexdigest()[:16]
             if kind == "nominal" and i < keep_captures and out is not None:
                 spec["save_to"] = str((out / "captures").resolve())
             specs.append(spec)
@@ -575,7 +560,7 @@ class SimCache:
         arrays = {k: np.asarray(row[k]) for k in ARRAYS if k in row}
         tmp = self.dir / f".{row['name']}.{os.getpid()}.tmp.npz"
         try:
-            np.savez_compressed(tmp, meta=np.asarray(json.dumps(_jsonable(meta))), **arrays)  # type: ignore[arg-type]
+            np.savez_compressed(tmp, meta=np.asarray(json.dumps(meta, default=json_default)), **arrays)  # type: ignore[arg-type]
             os.replace(tmp, self.path(row["name"]))
         finally:
             tmp.unlink(missing_ok=True)
@@ -647,7 +632,7 @@ def run(args: argparse.Namespace) -> int:
           f"({cfg['defects_per_capture']} defects each, {cfg['sizes_mm'][0]:.3g}-{cfg['sizes_mm'][1]:.3g} mm) on {study.rig_label}; "
           f"{len(specs) - len(todo)} already done in {cache.dir}" + (f" ({stale} of another study, redone)" if stale else "")
           + (f", {len(todo)} to run on {where}" if todo else ""), flush=True)
-    (out / "study.json").write_text(json.dumps(_jsonable({"key": study.key, **cfg}), indent=2), encoding="utf-8")
+    (out / "study.json").write_text(json.dumps({"key": study.key, **cfg}, indent=2, default=json_default), encoding="utf-8")
     failed: list[dict[str, Any]] = []
     if todo:
         client = cluster = None
