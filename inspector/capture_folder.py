@@ -61,13 +61,14 @@ import os
 import re
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
-from datetime import date, datetime, time
+from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from inspector.errors import CaptureError
+from inspector.jsonio import json_default
 from inspector.kernels.camera import is_rotation
 from inspector.limits import check_memory, image_file_bytes, limit, load_json, read_bounded
 from inspector.model import Camera, Capture, Rig, Truth
@@ -80,7 +81,6 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = [
     "RIG_FILE",
-    "json_default",
     "CAPTURE_FILE",
     "IMAGES_DIR",
     "BACKGROUND_DIR",
@@ -533,25 +533,6 @@ def read_capture(folder: str | os.PathLike[str]) -> Capture:
         source=folder,
         truth=truth,
     )
-
-
-def json_default(obj: Any) -> Any:
-    """``json.dumps(..., default=json_default)``: numpy arrays and scalars, paths, sets and
-    tuples, datetimes and dates, and read-only mappings as JSON; TypeError for anything else.
-    The one JSON hook of the capture folder and of every tool that writes arrays to JSON."""
-    if isinstance(obj, Mapping):
-        return dict(obj)
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, (set, frozenset, tuple)):
-        return list(obj)
-    if isinstance(obj, (date, time)):  # datetimes too; TOML dates and times
-        return obj.isoformat()
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
 def _write_bytes_atomic(path: Path, data: bytes) -> None:

@@ -39,8 +39,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from inspector import hookimpl
-from inspector.capture_folder import json_default
 from inspector.errors import CaptureError, InspectorError, RecipeError, ReferenceMeshError
+from inspector.jsonio import json_default
 from inspector.manager import create_plugin_manager
 from inspector.params import build_params
 from inspector.reference import Reference
