@@ -44,6 +44,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--characteristics", nargs="?", const="", metavar="PNG",
                    help="each characteristic over the parts: n, mean, s, Cp, Cpk, out of tolerance, Cg, Cgk; with PNG "
                         "also its individuals control chart with the tolerance band")
+    p.add_argument("--dfq", metavar="FILE", help="write the recorded characteristics as Q-DAS AQDEF (DFQ), one value line "
+                                                 "per part, as inspector run --dfq does (K1001: --recipe's reference, "
+                                                 "else the recorded recipe)")
     p.add_argument("--shift", nargs="?", type=int, const=1, metavar="N",
                    help="the current shift's counters (and the N-1 before it): yield, worst regions, errors by reason")
     p.add_argument("--config", metavar="TOML", help="the cell's settings for --shift ([shifts]; default cell.toml in "
@@ -67,7 +70,7 @@ def _url_of(args) -> tuple[str | None, str]:
     if getattr(args, "recipe", None):
         from inspector.recipe import load_recipe
 
-        recipe = load_recipe(args.recipe, args.plugin_manager)
+        recipe = args.loaded_recipe = load_recipe(args.recipe, args.plugin_manager)  # --dfq takes its reference
         settings = recipe.plugins.get("history")
         if isinstance(settings, HistorySettings) and settings.url:
             return settings.url, f"{args.recipe}: plugins.history.url"
@@ -124,6 +127,10 @@ def run(args) -> int:
     if args.pdf is not None:
         print("inspector: error: --pdf: the shift report; give --shift too", file=sys.stderr)
         return 2
+    if args.dfq is not None:
+        from inspector.characteristics.formats import output_file
+
+        output_file(args.dfq, "--dfq")  # a folder, or one that does not exist: RecipeError, one line, exit 2
     if args.verify:
         if args.outdir is None or args.send or args.url:
             print("inspector: error: --verify: give OUTDIR only (its history.sqlite is checked)", file=sys.stderr)
@@ -161,6 +168,10 @@ def run(args) -> int:
     except InputError as e:
         print(f"inspector: error: {e}", file=sys.stderr)
         return 3
+    if args.dfq is not None:
+        rc = _dfq_cmd(rows, args)
+        if rc or args.characteristics is None:
+            return rc
     if args.characteristics is not None:
         return _characteristics_cmd(rows, args.characteristics)
     for picture, draw in ((args.plot, plot_history), (args.cameras, plot_cameras)):
@@ -212,4 +223,35 @@ def _characteristics_cmd(rows: list[dict[str, Any]], picture: str) -> int:
             print(f"inspector: error: {picture}: cannot write ({e.strerror or e})", file=sys.stderr)
             return 3
         print(f"wrote {picture}")
+    return 0
+
+
+def _dfq_cmd(rows: list[dict[str, Any]], args) -> int:
+    """``--dfq FILE``: the recorded characteristics as Q-DAS AQDEF, by :func:`write_dfq` as
+    ``inspector run --dfq`` writes them. The history holds each part's rows (definition,
+    nominal, limits, value), its capture and its time, and the recipe's name, not the
+    reference: K1001 is ``--recipe``'s reference (as the run's), else the recorded recipe."""
+    from inspector.characteristics.formats import history_records, part_number_of, write_dfq
+    from inspector.recipe import load_recipe
+
+    rec = history_records(rows)  # InputError naming an unreadable row: exit 3
+    if not rec.parts:
+        print(f"inspector: error: none of the {len(rows)} inspections measured characteristics (a recipe's "
+              "[[characteristics]] and its evaluate.characteristics stage)", file=sys.stderr)
+        return 3
+    described = ", ".join(rec.recipes)
+    number = described
+    if getattr(args, "recipe", None):
+        recipe = getattr(args, "loaded_recipe", None) or load_recipe(args.recipe, args.plugin_manager)
+        if recipe.name not in rec.recipes:
+            print(f"inspector: error: --recipe {args.recipe}: recipe {recipe.name!r}, but the parts were inspected "
+                  f"with {described}", file=sys.stderr)
+            return 2
+        number = part_number_of(str(recipe.reference)) if recipe.reference else recipe.name
+    try:
+        path = write_dfq(args.dfq, rec.characteristics, rec.parts, part_number=number, part_description=described)
+    except OSError as e:
+        print(f"inspector: error: --dfq {args.dfq}: cannot write ({e.strerror or e})", file=sys.stderr)
+        return 3
+    print(f"wrote {path}: {len(rec.characteristics)} characteristics, {len(rec.parts)} parts of {len(rows)} inspections")
     return 0

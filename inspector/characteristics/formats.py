@@ -25,22 +25,24 @@ user attribute (QIF has no field for it in a characteristic's actual).
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import escape, quoteattr
 
 from inspector import __version__
-from inspector.characteristics.definitions import features_for
+from inspector.characteristics.definitions import features_for, rows_of
 from inspector.characteristics.measure import Characteristic, CharacteristicResult, unit_of
-from inspector.errors import RecipeError
+from inspector.errors import InputError, RecipeError
 
-__all__ = ["DFQ_FIELD", "DFQ_CHARACTERISTIC", "PartRecord", "RunRecords", "write_dfq", "write_qif"]
+__all__ = ["DFQ_FIELD", "DFQ_CHARACTERISTIC", "PartRecord", "RunRecords", "HistoryRecords", "write_dfq", "write_qif",
+           "history_records", "output_file", "part_number_of"]
 
 #: AQDEF separators of a value line: between the fields of one value, between characteristics.
 DFQ_FIELD = "\x14"
@@ -456,7 +458,9 @@ def _when(metadata: Mapping[str, Any]) -> datetime:
     return datetime.now().astimezone()
 
 
-def _output_file(path: str, option: str) -> Path:
+def output_file(path: str, option: str) -> Path:
+    """``path`` as a file to write: RecipeError (one line naming ``option`` and ``path``) when it
+    is a folder or its folder does not exist."""
     p = Path(path).expanduser()
     if p.is_dir():
         raise RecipeError(f"{option} {path}: is a folder, not a file")
@@ -495,10 +499,9 @@ class RunRecords:
         if reference is None:
             raise RecipeError(f"{option}: the recipe {recipe.name!r} has no reference mesh")
         return cls(chars, features_for(reference.vertices, reference.faces),
-                   _output_file(dfq, "--dfq") if dfq is not None else None,
-                   _output_file(qif, "--qif") if qif is not None else None,
-                   part_number=Path(str(reference.name)).stem if not str(reference.name).startswith("builtin:")
-                   else str(reference.name), part_description=str(recipe.name))
+                   output_file(dfq, "--dfq") if dfq is not None else None,
+                   output_file(qif, "--qif") if qif is not None else None,
+                   part_number=part_number_of(str(reference.name)), part_description=str(recipe.name))
 
     def add(self, result: Any) -> None:
         """Keep one result's characteristics (an :class:`~inspector.model.InspectionResult`)."""
@@ -517,3 +520,73 @@ class RunRecords:
             out.append(write_qif(self.qif, self.characteristics, self.features, self.parts,
                                  part_number=self.part_number, part_description=self.part_description))
         return out
+
+
+def part_number_of(reference: str) -> str:
+    """A part's number (the DFQ's K1001) from its reference: the mesh file's stem, or
+    ``builtin:NAME`` as it is."""
+    return reference if reference.startswith("builtin:") else Path(reference).stem
+
+
+def _recorded_time(row: Mapping[str, Any]) -> datetime:
+    """When a recorded part was inspected, as :class:`RunRecords` dates it: capture.json's
+    ``timestamp`` (the ``triggered_at`` column), else the row's ``inspected_at`` (UTC) in
+    local time, as the run's clock would have read it."""
+    for key in ("triggered_at", "inspected_at"):
+        v = row.get(key)
+        t: datetime | None = v if isinstance(v, datetime) else None
+        if t is None:
+            try:
+                t = datetime.fromisoformat(str(v).replace("Z", "+00:00")) if v else None
+            except ValueError:
+                t = None
+        if t is not None:
+            if key == "triggered_at":
+                return t
+            return (t if t.tzinfo is not None else t.replace(tzinfo=UTC)).astimezone()
+    raise ValueError("no inspected_at")
+
+
+@dataclass(frozen=True)
+class HistoryRecords:
+    """What :func:`history_records` takes from recorded inspections for :func:`write_dfq`."""
+
+    characteristics: tuple[Characteristic, ...]
+    parts: list[PartRecord]
+    recipes: list[str]
+
+
+def history_records(rows: Sequence[Mapping[str, Any]]) -> HistoryRecords:
+    """The characteristics of recorded inspections (``read_history`` or the plant database's
+    rows, oldest first), as :class:`RunRecords` collects them in a run: one
+    :class:`PartRecord` per inspection with characteristics rows (its ``extras`` column),
+    the capture as the part id, dated by :func:`_recorded_time`; each characteristic's
+    definition (kind, features, limits, nominal, criticality, description) from its first
+    recorded row, in first-recorded order (as ``inspector history --characteristics``
+    takes them); the recipes' names in first-recorded order. Inspections without
+    characteristics (an error, an older recipe) are left out.
+
+    Raises InputError (one line naming the inspection) for a row that cannot be read.
+    """
+    chars: dict[str, Characteristic] = {}
+    parts: list[PartRecord] = []
+    recipes: dict[str, None] = {}
+    keys = ("id", "kind", "features", "lower", "upper", "nominal", "criticality", "description")
+    for row in rows:
+        where = f"history: the inspection of {row.get('capture')!r} at {row.get('inspected_at')}"
+        try:
+            raw = row.get("extras")
+            found = rows_of({"extras": (json.loads(raw) if isinstance(raw, str) else raw) or {}})
+            if not found:
+                continue
+            results = tuple(CharacteristicResult.from_json(r) for r in found)
+            for r in found:
+                if str(r["id"]) not in chars:
+                    chars[str(r["id"])] = Characteristic.from_dict(
+                        {k: r[k] for k in keys if r.get(k) is not None}, where=f"characteristic {r['id']!r}")
+            when = _recorded_time(row)
+        except (KeyError, TypeError, ValueError, RecipeError) as e:
+            raise InputError(f"{where}: its characteristics cannot be read ({type(e).__name__}: {e})") from None
+        parts.append(PartRecord(str(row.get("capture")), when, results))
+        recipes.setdefault(str(row.get("recipe")), None)
+    return HistoryRecords(tuple(chars.values()), parts, list(recipes))
