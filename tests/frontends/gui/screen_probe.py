@@ -1,7 +1,7 @@
 """Open the operator window on the X display this process was given and describe it as JSON
-(run by ``tests/gui/test_screen.py`` under an Xvfb of each size; no window manager).
+(run by ``tests/frontends/gui/test_screen.py`` under an Xvfb of each size; no window manager).
 
-    python tests/gui/screen_probe.py OUT.json [--kiosk] [--lang de] [--out DIR] [--result FOLDER] [--shot PNG]
+    python tests/frontends/gui/screen_probe.py OUT.json [--kiosk] [--lang de] [--out DIR] [--result FOLDER] [--shot PNG]
 
 Writes the screen's geometry, the window's, every visible button's and menu bar's on the
 screen (global logical pixels), whether INSPECT has the keyboard focus and whether Space
