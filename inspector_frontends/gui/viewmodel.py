@@ -16,10 +16,11 @@ from typing import Any
 import numpy as np
 
 from inspector.capture_folder import read_rig
+from inspector.characteristics.definitions import rows_of
 from inspector.errors import InputError
 from inspector.outputs import read_ply, result_to_json
 
-__all__ = ["CameraThumb", "DefectRow", "ResultView", "from_outcome", "from_folder", "reason_text", "camera_thumbs",
+__all__ = ["CameraThumb", "DefectRow", "CharacteristicRow", "ResultView", "characteristic_rows", "from_outcome", "from_folder", "reason_text", "camera_thumbs",
            "calibration_flags", "normalised", "point_arrays", "SPAN", "SCALED", "set_text", "translate", "number"]
 
 # -- words and numbers --------------------------------------------------------------------------
@@ -111,6 +112,64 @@ class DefectRow:
     cameras: tuple[str, ...]
 
 
+@dataclass(frozen=True)
+class CharacteristicRow:
+    """One measured characteristic of the part (``result.json`` ``extras.characteristics``).
+
+    ``nominal`` and ``measured`` in ``unit`` (mm or deg); ``lower``/``upper`` are deviations
+    from ``nominal`` (form: limits of the value, nominal 0); ``measured``, ``deviation`` and
+    ``U`` (expanded uncertainty, k = 2) are None when ``verdict`` is ``not_measurable``, and
+    ``reason`` says why.
+    """
+
+    id: str
+    kind: str
+    label: str
+    unit: str
+    nominal: float
+    measured: float | None
+    deviation: float | None
+    lower: float
+    upper: float
+    U: float | None
+    verdict: str
+    reason: str = ""
+    criticality: str = ""
+    points: int = 0
+
+    @property
+    def use(self) -> float | None:
+        """The share of the tolerance the deviation uses (1: on a limit, above: outside)."""
+        if self.deviation is None:
+            return None
+        limit = self.upper if self.deviation >= 0 else self.lower
+        return abs(self.deviation) / abs(limit) if limit else (0.0 if self.deviation == 0 else float("inf"))
+
+
+def _float(v: Any) -> float | None:
+    try:
+        return None if v is None else float(v)
+    except (TypeError, ValueError):
+        return None
+
+
+def characteristic_rows(doc: Any) -> tuple[CharacteristicRow, ...]:
+    """The characteristics of a result (an :class:`~inspector.model.InspectionResult` or a
+    ``result.json`` document), in the recipe's order; () when the recipe measures none."""
+    out = []
+    for r in rows_of(doc):
+        try:
+            out.append(CharacteristicRow(
+                id=str(r["id"]), kind=str(r.get("kind", "")), label=str(r.get("description") or r.get("kind", "")),
+                unit=str(r.get("unit", "mm")), nominal=float(r.get("nominal", 0.0)), measured=_float(r.get("measured")),
+                deviation=_float(r.get("deviation")), lower=float(r.get("lower", 0.0)), upper=float(r.get("upper", 0.0)),
+                U=_float(r.get("U")), verdict=str(r.get("verdict", "not_measurable")), reason=str(r.get("reason", "")),
+                criticality=str(r.get("criticality", "")), points=int(r.get("points", 0) or 0)))
+        except (KeyError, TypeError, ValueError):  # a damaged row: the others are still shown
+            continue
+    return tuple(out)
+
+
 @dataclass(frozen=True, eq=False)
 class ResultView:
     """One inspection, ready to draw.
@@ -126,6 +185,9 @@ class ResultView:
         The reference mesh placed on the part (world frame).
     camera_centres : (C, 3) float
         Optical centres of the rig's cameras (world mm), in ``camera_names`` order.
+    characteristics : tuple of CharacteristicRow
+        The part's measured characteristics (:func:`characteristic_rows`), () when the
+        recipe measures none.
     calibration_flagged : dict
         The cameras the evaluate stage's calibration health flagged, each with why in words
         (:func:`calibration_flags`; the camera strip marks their tiles).
@@ -156,6 +218,7 @@ class ResultView:
     stats: dict[str, Any] = field(default_factory=dict)
     prepared: dict[str, Any] = field(default_factory=dict)
     calibration_flagged: dict[str, str] = field(default_factory=dict)
+    characteristics: tuple[CharacteristicRow, ...] = ()
 
 
 def calibration_flags(stats: Any) -> dict[str, str]:
@@ -210,13 +273,34 @@ def point_arrays(points: Any, deviation: Any, camera: Any, tolerance: tuple[floa
 
 
 def reason_text(verdict: str, defects: list[dict[str, Any]] | tuple[DefectRow, ...], tolerance: tuple[float, float],
-                error: str | None) -> str:
-    """The verdict's reason in words: for a FAIL the worst defect against its limit, for an
-    ERROR (or ABORTED) the one-line error."""
+                error: str | None, characteristics: tuple[CharacteristicRow, ...] = ()) -> str:
+    """The verdict's reason in words: for a FAIL the worst defect against its limit (and how
+    many characteristics are out of tolerance), or the worst NOK characteristic when no defect
+    failed it; for an ERROR (or ABORTED) the one-line error."""
     if verdict in ("error", "aborted"):
         return error or ""
-    if verdict != "fail" or not defects:
+    nok = sorted((c for c in characteristics if c.verdict == "nok"), key=lambda c: -(c.use or 0.0))
+    if verdict != "fail":
         return ""
+    if not defects:
+        return _nok_text(nok[0], len(nok) - 1) if nok else ""
+    return _defect_text(defects, tolerance) + (
+        translate("ViewModel", " (+{n} NOK characteristics)").format(n=len(nok)) if nok else "")
+
+
+def _nok_text(c: CharacteristicRow, more: int) -> str:
+    """``characteristic 2 (depth 30): 30.021 mm, limits -0.010 / +0.010``."""
+    digits = 3 if c.unit == "mm" else 2
+    text = translate("ViewModel", "characteristic {id} ({label}): {value} {unit}, deviation {dev}, limits {lower} / {upper}")
+    text = text.format(id=c.id, label=c.label, value=number(c.measured or 0.0, digits), unit=c.unit,
+                       dev=number(c.deviation or 0.0, digits, sign=True), lower=number(c.lower, digits, sign=True),
+                       upper=number(c.upper, digits, sign=True))
+    if more:
+        text += translate("ViewModel", " (+{n} more NOK)").format(n=more)
+    return text
+
+
+def _defect_text(defects: list[dict[str, Any]] | tuple[DefectRow, ...], tolerance: tuple[float, float]) -> str:
     rows: list[dict[str, Any]] = [
         d if isinstance(d, dict) else {"kind": d.kind, "region": d.region, "worst_mm": d.worst_mm} for d in defects]
     worst = max(rows, key=lambda d: abs(d["worst_mm"]))
@@ -373,13 +457,14 @@ def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, ke
         points, deviation, camera, prepared = point_arrays(res.bcps.points, res.bcps.deviation, res.bcps.camera,
                                                            tolerance)
     thumbs = camera_thumbs(ctx, keep_full) if cameras else ()
+    chars = characteristic_rows(doc)
     return ResultView(
         capture=res.capture,
         verdict=res.verdict,
         recipe=res.recipe,
         part_id=_part_id(doc["metadata"]),
         cycle_s=res.timings_s.get("total"),
-        reason=reason_text(res.verdict, doc["defects"], tolerance, res.error),
+        reason=reason_text(res.verdict, doc["defects"], tolerance, res.error, chars),
         error=res.error,
         folder=folder,
         points=points,
@@ -394,6 +479,7 @@ def from_outcome(outcome: Any, folder: Path | None, reference: Any = None, *, ke
         stats=doc["stats"],
         prepared=prepared,
         calibration_flagged=calibration_flags(doc["stats"]),
+        characteristics=chars,
     )
 
 
@@ -439,6 +525,7 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
         except Exception:  # noqa: BLE001 - the rig is optional here
             pass
     defects = list(doc.get("defects") or [])
+    chars = characteristic_rows(doc)
     pose = doc.get("pose")
     ref = reference if reference is not None and doc.get("recipe") else None
     return ResultView(
@@ -447,7 +534,7 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
         recipe=str(doc.get("recipe", "")),
         part_id=_part_id(doc.get("metadata") or {}),
         cycle_s=(doc.get("timings_s") or {}).get("total"),
-        reason=reason_text(verdict, defects, tolerance, doc.get("error")),
+        reason=reason_text(verdict, defects, tolerance, doc.get("error"), chars),
         error=doc.get("error"),
         folder=folder,
         points=points,
@@ -461,5 +548,6 @@ def from_folder(folder: Path, reference: Any = None) -> ResultView:
         stats=stats,
         prepared={SCALED: normalised(deviation, tolerance)},
         calibration_flagged=calibration_flags(stats),
+        characteristics=chars,
     )
 

@@ -48,6 +48,7 @@ from inspector.roles import ENGINEER, RoleSession, password_problem
 from inspector.session import Session, Source
 from inspector.shift import ShiftSettings
 from inspector_frontends.gui.cameras import CameraDialog, CameraStrip
+from inspector_frontends.gui.characteristics import CharacteristicsPanel, ResultTabs
 from inspector_frontends.gui.collector import freeze_startup_objects
 from inspector_frontends.gui.editor import LoginDialog, RecipeEditor
 from inspector_frontends.gui.history_strip import HistoryStrip, read_shift
@@ -218,10 +219,12 @@ class MainWindow(ScreenWindow):
         self.view3d = DeviationView()
         self.defects = DefectTable()
         self.defects.defect_selected.connect(self.select_defect)
+        self.characteristics = CharacteristicsPanel()
+        self.tables = ResultTabs(self.defects, self.characteristics)
         self.cameras = CameraStrip()
         self.cameras.opened.connect(self.open_camera)
         right = QSplitter(Qt.Orientation.Vertical)
-        right.addWidget(self.defects)
+        right.addWidget(self.tables)
         right.addWidget(self.cameras)
         right.setSizes([220, 520])
         middle = QSplitter(Qt.Orientation.Horizontal)
@@ -506,7 +509,13 @@ class MainWindow(ScreenWindow):
         self._waited = 0
         self.current_result = view
         self.banner.show_result(view)
-        self.defects.show_result(view)
+        self.tables.show_result(view)
+        if view.characteristics and self.right.sizes()[0] < 400 and not self.portrait:
+            # Room for the characteristics' table (its labels) and their trend, once.
+            self.right.setSizes([420, sum(self.right.sizes()) - 420])
+            wide = min(760, sum(self.middle.sizes()) // 2)
+            if self.middle.sizes()[1] < wide:
+                self.middle.setSizes([sum(self.middle.sizes()) - wide, wide])
         word = verdict_word(view.verdict)
         self.progress_label.setText(self.tr("{capture}: {verdict} in {seconds} s").format(
             capture=view.capture, verdict=word, seconds=number(view.cycle_s, 2)) if view.cycle_s is not None
@@ -549,6 +558,7 @@ class MainWindow(ScreenWindow):
         else:
             self.history.show_rows(*prepared)
             self.history.shift.show_counters(view.prepared.get(SHIFT))
+        self.characteristics.show_history(self.history.rows)
 
     def _drawn(self) -> None:
         self.result_shown.emit(self.current_result)

@@ -47,6 +47,58 @@
     </message>
 </context>
 <context>
+    <name>CharacteristicsPanel</name>
+    <message>
+        <source>{id} {label}: last {n} parts</source>
+        <translation>{id} {label}: letzte {n} Teile</translation>
+    </message>
+</context>
+<context>
+    <name>CharacteristicsTable</name>
+    <message>
+        <source>OK</source>
+        <extracomment>Verdict of a characteristic -&gt; (word, glyph, colour); the word and glyph say it without colour.</extracomment>
+        <translation>IO</translation>
+    </message>
+    <message>
+        <source>NOK</source>
+        <translation>NIO</translation>
+    </message>
+    <message>
+        <source>not measurable</source>
+        <translation>nicht messbar</translation>
+    </message>
+    <message>
+        <source>characteristic</source>
+        <extracomment>Column of the deviation bar.</extracomment>
+        <translation>Merkmal</translation>
+    </message>
+    <message>
+        <source>measured</source>
+        <translation>Istwert</translation>
+    </message>
+    <message>
+        <source>nominal</source>
+        <translation>Nennmaß</translation>
+    </message>
+    <message>
+        <source>deviation</source>
+        <translation>Abweichung</translation>
+    </message>
+    <message>
+        <source>U (k=2)</source>
+        <translation>U (k=2)</translation>
+    </message>
+    <message>
+        <source>verdict</source>
+        <translation>Urteil</translation>
+    </message>
+    <message>
+        <source>characteristics table</source>
+        <translation>Merkmalstabelle</translation>
+    </message>
+</context>
+<context>
     <name>DefectTable</name>
     <message>
         <source>kind</source>
@@ -136,7 +188,6 @@
     <name>MainWindow</name>
     <message>
         <source>Inspector: operator</source>
-        <extracomment>After a result is drawn, objects left out of the garbage collector&apos;s scans again once more than this many are tracked (what the first inspections import lazily).</extracomment>
         <translation>Inspector: Bediener</translation>
     </message>
     <message>
@@ -412,6 +463,21 @@
     </message>
 </context>
 <context>
+    <name>ResultTabs</name>
+    <message>
+        <source>Defects ({n})</source>
+        <translation>Fehlstellen ({n})</translation>
+    </message>
+    <message>
+        <source>Characteristics ({n}, {nok} NOK)</source>
+        <translation>Merkmale ({n}, {nok} NIO)</translation>
+    </message>
+    <message>
+        <source>Characteristics ({n})</source>
+        <translation>Merkmale ({n})</translation>
+    </message>
+</context>
+<context>
     <name>Shift</name>
     <message>
         <source>early</source>
@@ -508,10 +574,29 @@
     </message>
 </context>
 <context>
+    <name>TrendChart</name>
+    <message>
+        <source>characteristic trend</source>
+        <translation>Merkmalsverlauf</translation>
+    </message>
+    <message>
+        <source>green: tolerance · dashed: control limits · ring: this part</source>
+        <translation>grün: Toleranz · gestrichelt: Eingriffsgrenzen · Ring: dieses Teil</translation>
+    </message>
+    <message>
+        <source>select a characteristic to see its trend</source>
+        <translation>Merkmal wählen, um seinen Verlauf zu sehen</translation>
+    </message>
+    <message>
+        <source>no recorded value yet</source>
+        <translation>noch kein Wert aufgezeichnet</translation>
+    </message>
+</context>
+<context>
     <name>Verdict</name>
     <message>
         <source>PASS</source>
-        <extracomment>Keys of :attr:`ResultView.prepared` filled by :func:`prepare_view`. History rows the strip reads (chips show the last ``HistoryStrip.CHIPS`` of them). matplotlib&apos;s figures are not meant to be drawn by two threads at once. The figure :func:`history_chart` draws on (under the lock), and its size. Verdict -&gt; (word, icon glyph, background). The word and the glyph say it without colour. The words are English sources: :func:`verdict_word` gives them in the GUI&apos;s language.</extracomment>
+        <extracomment>Keys of :attr:`ResultView.prepared` filled by :func:`~inspector_frontends.gui.prepare.prepare_view`. Verdict -&gt; (word, icon glyph, background). The word and the glyph say it without colour. The words are English sources: :func:`verdict_word` gives them in the GUI&apos;s language.</extracomment>
         <translation>IO</translation>
     </message>
     <message>
@@ -578,6 +663,18 @@
         <translation>Kalibrierung: weicht von den anderen Kameras ab (Schwelle {limit} px): Befestigung prüfen oder neu kalibrieren</translation>
     </message>
     <message>
+        <source> (+{n} NOK characteristics)</source>
+        <translation> (+{n} NIO-Merkmale)</translation>
+    </message>
+    <message>
+        <source>characteristic {id} ({label}): {value} {unit}, deviation {dev}, limits {lower} / {upper}</source>
+        <translation>Merkmal {id} ({label}): {value} {unit}, Abweichung {dev}, Grenzen {lower} / {upper}</translation>
+    </message>
+    <message>
+        <source> (+{n} more NOK)</source>
+        <translation> (+{n} weitere NIO)</translation>
+    </message>
+    <message>
         <source>missing material in region &apos;{region}&apos;: {worst} mm, limit {limit} mm</source>
         <translation>fehlendes Material im Bereich &apos;{region}&apos;: {worst} mm, Grenze {limit} mm</translation>
     </message>
@@ -606,6 +703,7 @@
     <name>Widgets</name>
     <message>
         <source>yield {share}</source>
+        <extracomment>History rows the strip reads (chips show the last ``HistoryStrip.CHIPS`` of them). matplotlib&apos;s figures are not meant to be drawn by two threads at once. The figure :func:`history_chart` draws on (under the lock), and its size.</extracomment>
         <translation>Ausbeute {share}</translation>
     </message>
     <message>
