@@ -38,6 +38,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from inspector import hookimpl
 from inspector.kernels.bcps import confidence
 from inspector.model import EvaluationSummary
@@ -60,6 +62,9 @@ class CharacteristicsParams:
     u_surface_px: float = param(0.01, "standard uncertainty of the offset the silhouettes give the whole part's surface, "
                                       "in pixel footprints (added to each diameter's and thickness's u: 2 x this for "
                                       "both; see docs/characteristics.md for how it was measured)", min=0.0, max=10.0)
+    per_camera: bool = param(True, "count the points of one camera's contour as erring together: each fit's "
+                                   "uncertainty grows by their between-camera scatter (a plane seen only along "
+                                   "edges that few cameras show is held by a few observations, not thousands)")
     fail_not_measurable: bool = param(False, "a characteristic the silhouettes cannot measure fails the part "
                                              "(default: reported with its reason, the verdict unchanged)")
 
@@ -82,8 +87,9 @@ def rows(ctx: InspectionContext, p: CharacteristicsParams) -> list[dict[str, Any
     if p.weighted and fp is not None and len(sel.segment_mm):
         weights = confidence(sel.segment_mm, fp)
     u_surface = p.u_surface_px * fp if fp is not None else 0.0
+    groups = np.asarray(sel.camera) if p.per_camera and len(sel.camera) == len(local) else None
     results = measure(chars, feats, local, weights, ref, band_mm=p.band_mm, max_u_fraction=p.max_u_fraction,
-                      u_surface_mm=u_surface)
+                      u_surface_mm=u_surface, groups=groups)
     out = []
     for c, r in zip(chars, results):
         out.append({**r.to_json(), "unit": c.unit, "criticality": c.criticality, "description": c.label})

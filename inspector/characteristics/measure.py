@@ -383,7 +383,8 @@ def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray, start: Mapping[str, Any]
 
 def measure(characteristics: Sequence[Characteristic], features: Sequence[Feature], points_ref: np.ndarray,
             weights: np.ndarray | None, reference: Any, *, band_mm: float = 0.5, max_u_fraction: float = 0.5,
-            slice_mm: float | None = None, u_surface_mm: float = 0.0) -> list[CharacteristicResult]:
+            slice_mm: float | None = None, u_surface_mm: float = 0.0,
+            groups: np.ndarray | None = None) -> list[CharacteristicResult]:
     """Measure characteristics from one inspection's points.
 
     Parameters
@@ -410,6 +411,11 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
         points (the silhouettes' edge placement), mm; added in quadrature to each size
         characteristic's ``u`` times its sensitivity (:func:`offset_sensitivity`: 2 for a
         diameter or a thickness, 0 for a step, an axis distance, an angle or a form).
+    groups : (N,) int, optional
+        The source of each point (the camera whose contour gave it): each feature's fit
+        covariance is scaled by the points' design effect over these groups
+        (:func:`inspector.kernels.fits.grouped`), so points that err together are not
+        counted as independent. None: every point independent.
 
     Returns
     -------
@@ -424,6 +430,9 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
     if w.shape != (len(P),):
         raise ValueError(f"weights must be ({len(P)},), got {w.shape}")
     w = np.clip(np.nan_to_num(w, nan=0.0), 0.0, None)
+    g = None if groups is None else np.asarray(groups).ravel()
+    if g is not None and g.shape != (len(P),):
+        raise ValueError(f"groups must be ({len(P)},), got {g.shape}")
     needed = sorted({fid for c in characteristics for fid in c.features})
     used = [by_id[fid] for fid in needed]
     owner = assign_points(P, used, reference, band_mm)
@@ -432,6 +441,8 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
         sel = (owner == k) & (w > 0)
         Pf, wf = P[sel], w[sel]
         fit, keep = _robust_fit(f, Pf, wf)
+        if g is not None and fit.params:
+            fit = fits.grouped(fit, g[sel][keep], wf[keep])
         fitted[f.id] = (fit, Pf[keep])
     out = []
     for c in characteristics:

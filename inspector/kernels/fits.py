@@ -35,6 +35,7 @@ Units: mm and radians inside; angles in the results' ``*_deg`` names are degrees
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -59,6 +60,9 @@ __all__ = [
     "fit_line",
     "fit_plane",
     "fit_sphere",
+    "between_groups_f",
+    "design_effect",
+    "grouped",
     "flatness",
     "orthonormal_basis",
     "propagate",
@@ -113,6 +117,8 @@ class Fit:
         The key parameter's standard uncertainty over ``s / sqrt(N)``.
     problem : str or None
         Why the fit cannot be trusted; None when it can.
+    design_effect : float
+        The factor :func:`grouped` multiplied ``cov`` by (1: the points taken as independent).
     """
 
     kind: str
@@ -126,6 +132,7 @@ class Fit:
     amplification: float
     problem: str | None
     _geometry: Callable[[np.ndarray], dict[str, Any]] = field(repr=False)
+    design_effect: float = 1.0
 
     @property
     def ok(self) -> bool:
@@ -138,7 +145,74 @@ class Fit:
 
     def to_json(self) -> dict[str, Any]:
         return {"kind": self.kind, "params": {k: _plain(v) for k, v in self.params.items()}, "s": self.s,
-                "n": self.n, "u": dict(self.u), "amplification": self.amplification, "problem": self.problem}
+                "n": self.n, "u": dict(self.u), "amplification": self.amplification, "problem": self.problem,
+                "design_effect": self.design_effect}
+
+
+def _mean_squares(residuals: np.ndarray, groups: np.ndarray, weights: np.ndarray | None) -> tuple[float, float, float]:
+    """(between, within, total) weighted mean squares of ``residuals`` grouped by ``groups``;
+    NaN when fewer than two groups or no degree of freedom within them."""
+    r = np.asarray(residuals, float).ravel()
+    g = np.asarray(groups).ravel()
+    w = np.ones(len(r)) if weights is None else np.asarray(weights, float).ravel()
+    if g.shape != r.shape or w.shape != r.shape:
+        raise FitError(f"residuals, groups and weights must have one shape, got {r.shape}, {g.shape}, {w.shape}")
+    labels, idx = np.unique(g, return_inverse=True)
+    G, n = len(labels), len(r)
+    if G < 2 or n - G <= 0:
+        return float("nan"), float("nan"), float("nan")
+    w = w / max(float(w.mean()), 1e-300)
+    W = np.bincount(idx, weights=w, minlength=G)
+    mean_g = np.bincount(idx, weights=w * r, minlength=G) / np.maximum(W, 1e-300)
+    grand = float((w * r).sum() / w.sum())
+    between = float((W * (mean_g - grand) ** 2).sum()) / (G - 1)
+    within = float((w * (r - mean_g[idx]) ** 2).sum()) / (n - G)
+    total = float((w * (r - grand) ** 2).sum()) / (n - 1)
+    return between, within, total
+
+
+def between_groups_f(residuals: np.ndarray, groups: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """The one-way analysis-of-variance ratio of ``residuals`` (N,) grouped by ``groups`` (N,):
+    the mean square between the groups' (weighted) means over the mean square within them.
+
+    About 1 when the groups share nothing but the points' scatter; large when each group's
+    points are off together (a camera's contour placed a little off: all its points move).
+    NaN with fewer than two groups or no degree of freedom within them."""
+    between, within, _ = _mean_squares(residuals, groups, weights)
+    return between / within if within > 0 else (float("nan") if np.isnan(within) else float("inf"))
+
+
+def design_effect(residuals: np.ndarray, groups: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """How many times the variance of a mean of ``residuals`` exceeds what independent points
+    would give, their shared error being in ``groups``: the mean square between the groups
+    over the residuals' whole mean square (Kish's design effect for cluster samples,
+    ``1 + (m - 1) rho`` for groups of ``m`` points with intra-group correlation ``rho``).
+    About 1 for independent points; NaN when the groups cannot tell."""
+    between, _, total = _mean_squares(residuals, groups, weights)
+    return between / total if total > 0 else float("nan")
+
+
+def grouped(fit: Fit, groups: np.ndarray, weights: np.ndarray | None = None) -> Fit:
+    """``fit`` with its covariance multiplied by the design effect of ``groups`` (N,), one
+    label per point in the order the fit used them (e.g. the camera whose contour gave it).
+
+    Least squares takes the points as independent, so its covariance shrinks as 1/N. Points
+    that share an error source are not: every point of one camera's contour moves with that
+    camera's edge placement and calibration, and a plane seen only along edges that few
+    cameras show is held by a handful of independent observations, not thousands. The
+    design effect of the residuals (:func:`design_effect`) is the factor by which the groups'
+    mean scatter exceeds what independent points would give (for an offset, the ratio of
+    the cluster-robust variance to the independent one); when above 1 it scales ``cov`` and
+    ``u`` (by its square root). A fit with too few groups to tell, or already singular, is
+    returned unchanged.
+    """
+    if not np.isfinite(fit.cov).all() or len(fit.residuals) == 0:
+        return fit
+    F = design_effect(fit.residuals, groups, weights)
+    if not np.isfinite(F) or F <= 1.0:
+        return fit
+    k = float(np.sqrt(F))
+    return dataclasses.replace(fit, cov=fit.cov * F, u={key: v * k for key, v in fit.u.items()}, design_effect=F)
 
 
 def _plain(v: Any) -> Any:
