@@ -49,7 +49,8 @@ Exit status: 0 every measured target met, 1 a target not met, 3 an inspection fa
 Importing this module is cheap: numpy, Open3D and the pipeline are imported when used (the
 measurements live beside it: :mod:`~inspector_tools.bench.cycles`, :mod:`~inspector_tools.bench.carving`,
 :mod:`~inspector_tools.bench.throughput` (``--dask``), :mod:`~inspector_tools.bench.gui` (``--gui``),
-:mod:`~inspector_tools.bench.opcua` (``--opcua``); the targets and the 5 MP sizes in
+:mod:`~inspector_tools.bench.opcua` (``--opcua``), :mod:`~inspector_tools.bench.characteristics`
+(``--characteristics``: issue 28's 50 ms for 20 characteristics); the targets and the 5 MP sizes in
 :mod:`~inspector_tools.bench.targets`, the shared helpers in :mod:`~inspector_tools.bench.common`).
 """
 
@@ -160,22 +161,20 @@ def add_parser(subparsers: Any) -> None:
                         "p99) against the headless cycle of the same parts (--recipe defaults to recipes/demo.toml "
                         "there; inspector_tools.bench.opcua)")
     b.add_argument("--opcua-parts", type=int, default=100, metavar="N", help="with --opcua: timed parts (default 100)")
+    b.add_argument("--characteristics", action="store_true",
+                   help="time the characteristics stage's measurement instead: 20 characteristics of the bracket, "
+                        "target 50 ms (process CPU time, median; inspector_tools.bench.characteristics)")
+    b.add_argument("--characteristics-points", type=int, default=15000, metavar="N",
+                   help="with --characteristics: points of the part (default 15000)")
+    b.add_argument("--characteristics-runs", type=int, default=20, metavar="N",
+                   help="with --characteristics: timed runs after a warm-up (default 20)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run ``inspector bench``; see the module docstring. Exit 0 targets met, 1 not met, 3 inspection error."""
-    if args.gui:  # Qt is imported there, never by this module
-        from inspector_tools.bench.gui import run_gui_bench
-
-        return run_gui_bench(args)
-    if getattr(args, "opcua", False):  # asyncua is imported there, never by this module
-        from inspector_tools.bench.opcua import run_opcua_bench
-
-        return run_opcua_bench(args)
-    if getattr(args, "dask", False):
-        from inspector_tools.bench.throughput import dask_throughput
-
-        return dask_throughput(args)
+    special = _run_special_mode(args)
+    if special is not None:
+        return special
     from inspector.session import Session
 
     check_args(args)
@@ -259,6 +258,28 @@ def run(args: argparse.Namespace) -> int:
         say(f"\n  figures written to {write_figures(args.json, doc)}")
     measured = [t["met"] for t in doc["targets"].values() if t["met"] is not None]
     return 0 if all(measured) else 1
+
+
+def _run_special_mode(args: argparse.Namespace) -> int | None:
+    """Run ``--gui``, ``--opcua``, ``--characteristics`` or ``--dask`` when asked (its exit
+    status); None: the pipeline's bench. Each mode's libraries are imported in its module."""
+    if args.gui:  # Qt is imported there, never by this module
+        from inspector_tools.bench.gui import run_gui_bench
+
+        return run_gui_bench(args)
+    if getattr(args, "opcua", False):  # asyncua is imported there, never by this module
+        from inspector_tools.bench.opcua import run_opcua_bench
+
+        return run_opcua_bench(args)
+    if getattr(args, "characteristics", False):  # numpy, trimesh and the core are imported there
+        from inspector_tools.bench.characteristics import run_characteristics_bench
+
+        return run_characteristics_bench(args)
+    if getattr(args, "dask", False):
+        from inspector_tools.bench.throughput import dask_throughput
+
+        return dask_throughput(args)
+    return None
 
 
 def _print_acquisition(acquisition: dict[str, Any]) -> None:

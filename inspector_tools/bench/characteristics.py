@@ -1,0 +1,236 @@
+"""``inspector bench --characteristics``: what measuring 20 characteristics adds to one part.
+
+Target (issue 28): the characteristics stage adds at most :data:`TARGET_MS` (50 ms) per
+part for 20 characteristics. The figure compared with it is the median **process CPU
+time** of :func:`inspector.characteristics.measure.measure`: on a shared machine other
+jobs stretch the wall time, not this process's CPU time (both are reported, with the
+1-minute load average at the start and at the end beside them).
+
+The workload (that of the former standalone script, built here without importing the
+tests):
+
+- the reference: the built-in bracket (``Reference.from_mesh("builtin:bracket",
+  make_part("bracket"))``; 17 features: 13 planes, 4 bores,
+  :func:`inspector.kernels.features.find_features`), its closest-point index built before
+  the timing (the stage builds it once per reference, not per part);
+- the points: ``--characteristics-points`` (default 15000, what the bcps stage keeps of a
+  16-camera capture) sampled with ``trimesh.sample.sample_surface`` (fixed seed) on the
+  "true part", with 3 um of normal noise along the face normals. The true part is the
+  bracket's construction (:func:`true_bracket`: the same boxes and holes as
+  :mod:`inspector.parts`, but 512-section holes, chord error 0.1 um, united and cut with
+  manifold3d) scaled by :data:`SCALE` (1.002) about its bounding-box centre: the same
+  part the tests of the characteristics use;
+- :data:`CHARACTERISTICS`: 20 of the mix a drawing has: 4 diameters, 2 radii,
+  6 distances, 2 angles, 3 positions, flatness, roundness, cylindricity.
+
+``measure()`` runs once as a warm-up (imports, SciPy's HiGHS), then
+``--characteristics-runs`` times (default 20), each timed with ``time.perf_counter`` and
+``time.process_time``. No timed assertion anywhere: the figures are read, not tested.
+Exit 0 target met, 1 not met.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from inspector.characteristics.measure import Characteristic, measure
+from inspector.errors import RecipeError
+from inspector.kernels.features import Feature, find_features
+from inspector.parts import make_part
+from inspector.reference import Reference
+from inspector_tools.bench.common import loadavg, machine, write_figures
+
+__all__ = ["TARGET_MS", "SCALE", "CHARACTERISTICS", "true_bracket", "workload", "bench_characteristics",
+           "print_characteristics", "run_characteristics_bench"]
+
+#: Median process CPU time of ``measure()`` for the 20 characteristics, ms (issue 28).
+TARGET_MS = 50.0
+
+#: Scale of the true part against the reference (a part 0.2 % large: every size deviates).
+SCALE = 1.002
+
+#: Normal noise added to the sampled points along the surface normal, mm.
+NOISE_MM = 0.003
+
+#: Twenty characteristics of the bracket: 4 diameters, 2 radii, 6 distances, 2 angles,
+#: 3 positions, flatness, roundness, cylindricity.
+CHARACTERISTICS: list[Characteristic] = [
+    *[Characteristic(f"D{i}", "diameter", (f,), -0.05, 0.05) for i, f in enumerate(("F14", "F15", "F16", "F17"), 1)],
+    Characteristic("R1", "radius", ("F16",), -0.05, 0.05),
+    Characteristic("R2", "radius", ("F14",), -0.05, 0.05),
+    Characteristic("L1", "distance", ("F01", "F04"), -0.05, 0.05),
+    Characteristic("L2", "distance", ("F02", "F03"), -0.05, 0.05),
+    Characteristic("L3", "distance", ("F09", "F01"), -0.05, 0.05),
+    Characteristic("L4", "distance", ("F14", "F15"), -0.1, 0.1),
+    Characteristic("L5", "distance", ("F16", "F17"), -0.1, 0.1),
+    Characteristic("L6", "distance", ("F05", "F06"), -0.1, 0.1),
+    Characteristic("A1", "angle", ("F01", "F02"), -0.1, 0.1),
+    Characteristic("A2", "angle", ("F04", "F03"), -0.1, 0.1),
+    Characteristic("P1", "position", ("F14",), 0.0, 0.1),
+    Characteristic("P2", "position", ("F15",), 0.0, 0.1),
+    Characteristic("P3", "position", ("F16",), 0.0, 0.1),
+    Characteristic("FL", "flatness", ("F01",), 0.0, 0.05),
+    Characteristic("RO", "roundness", ("F17",), 0.0, 0.05),
+    Characteristic("CY", "cylindricity", ("F14",), 0.0, 0.05),
+]
+
+_VERDICTS = ("ok", "nok", "not_measurable")
+
+
+def true_bracket(scale: float = SCALE, sections: int = 512) -> trimesh.Trimesh:
+    """The built-in bracket's construction with finely sectioned holes, scaled about its centre.
+
+    Parameters
+    ----------
+    scale : float
+        Uniform scale about the bounding-box centre (1.0: the nominal part).
+    sections : int
+        Sections of each hole's cylinder (512: chord error 0.1 um for the Ø8 holes).
+
+    Returns
+    -------
+    trimesh.Trimesh
+        The "true part" whose surface the benchmark's points sample, centred on its
+        bounding-box centre as the built-in reference is.
+    """
+    def box(ext: tuple[float, float, float], c: tuple[float, float, float]) -> trimesh.Trimesh:
+        b = trimesh.creation.box(extents=ext)
+        b.apply_translation(c)
+        return b
+
+    def cyl(r: float, p0: tuple[float, float, float], p1: tuple[float, float, float]) -> trimesh.Trimesh:
+        return trimesh.creation.cylinder(radius=r, segment=np.array([p0, p1], float), sections=sections)
+
+    body = trimesh.boolean.union([box((60, 40, 6), (30, 20, 3)), box((60, 6, 40), (30, 3, 20))], engine="manifold")
+    cut = [cyl(3.0, (10, 28, -1), (10, 28, 7)), cyl(3.0, (50, 28, -1), (50, 28, 7)),
+           cyl(4.0, (15, -1, 28), (15, 7, 28)), cyl(4.0, (45, -1, 28), (45, 7, 28)), box((20, 12, 4), (30, 26, 5))]
+    m = trimesh.boolean.difference([body, *cut], engine="manifold")
+    m.apply_translation(-m.bounds.mean(axis=0))
+    m.apply_scale(scale)
+    return m
+
+
+def workload(n_points: int, seed: int = 3) -> tuple[Reference, list[Feature], np.ndarray]:
+    """The bracket reference, its features and ``n_points`` noisy points of the true part.
+
+    Parameters
+    ----------
+    n_points : int
+        Points sampled on :func:`true_bracket` (area-weighted, ``seed + 1``).
+    seed : int
+        Seed of the noise (``numpy.random.default_rng(seed)``).
+
+    Returns
+    -------
+    reference : Reference
+        ``builtin:bracket``, its closest-point index already built.
+    features : list of Feature
+        Its features (:func:`~inspector.kernels.features.find_features`).
+    points : (n_points, 3) float
+        The sampled points with :data:`NOISE_MM` of normal noise along the face normals, mm,
+        in the reference frame.
+    """
+    ref = Reference.from_mesh("builtin:bracket", make_part("bracket"))
+    feats = find_features(ref.vertices, ref.faces)
+    true = true_bracket(SCALE)
+    rng = np.random.default_rng(seed)
+    P, fid = trimesh.sample.sample_surface(true, n_points, seed=seed + 1)
+    P = P + (NOISE_MM * rng.standard_normal(len(P)))[:, None] * true.face_normals[fid]
+    ref.distance.closest(P[:10])  # the closest-point index: built once per reference, not per part
+    return ref, feats, np.asarray(P, dtype=float)
+
+
+def _stats(values: list[float]) -> dict[str, float]:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
+
+
+def bench_characteristics(n_points: int = 15000, runs: int = 20, *, seed: int = 3,
+                          progress: Callable[[str], None] = lambda s: None) -> dict[str, Any]:
+    """Time :func:`~inspector.characteristics.measure.measure` of :data:`CHARACTERISTICS`.
+
+    Parameters
+    ----------
+    n_points : int
+        Points of the part (see :func:`workload`).
+    runs : int
+        Timed runs after one warm-up run.
+    seed : int
+        Seed of the points (see :func:`workload`).
+    progress : callable
+        Called with one line before each step.
+
+    Returns
+    -------
+    dict
+        ``points``, ``characteristics`` (counts), ``runs``, ``wall_ms`` and ``cpu_ms``
+        (``median``, ``min``, ``max`` over the timed runs), ``warmup_ms`` (wall),
+        ``target_ms`` (:data:`TARGET_MS`), ``met`` (CPU median <= target), ``load``
+        (``start``, ``end``: the 1-minute load average), ``verdicts`` (counts of ``ok``,
+        ``nok``, ``not_measurable`` in the last run).
+    """
+    if n_points < 100:
+        raise RecipeError("bench --characteristics-points: expected a number >= 100")
+    if runs < 1:
+        raise RecipeError("bench --characteristics-runs: expected a number >= 1")
+    load_start = loadavg()
+    progress(f"Characteristics: the bracket reference, its features and {n_points} points of the true part ...")
+    ref, feats, P = workload(n_points, seed)
+    progress(f"Timing measure() of {len(CHARACTERISTICS)} characteristics: 1 warm-up + {runs} runs ...")
+    t0 = time.perf_counter()
+    res = measure(CHARACTERISTICS, feats, P, None, ref)  # warm-up (imports, SciPy's HiGHS)
+    warmup_ms = 1e3 * (time.perf_counter() - t0)
+    wall, cpu = [], []
+    for _ in range(runs):
+        t0, c0 = time.perf_counter(), time.process_time()
+        res = measure(CHARACTERISTICS, feats, P, None, ref)
+        wall.append(1e3 * (time.perf_counter() - t0))
+        cpu.append(1e3 * (time.process_time() - c0))
+    cpu_ms = _stats(cpu)
+    return {
+        "points": int(len(P)),
+        "characteristics": len(CHARACTERISTICS),
+        "runs": runs,
+        "wall_ms": _stats(wall),
+        "cpu_ms": cpu_ms,
+        "warmup_ms": warmup_ms,
+        "target_ms": TARGET_MS,
+        "met": cpu_ms["median"] <= TARGET_MS,
+        "load": {"start": load_start, "end": loadavg()},
+        "verdicts": {v: sum(r.verdict == v for r in res) for v in _VERDICTS},
+    }
+
+
+def print_characteristics(doc: dict[str, Any]) -> None:
+    """Print the figures of :func:`bench_characteristics` (``doc``, with ``machine``)."""
+    ld, cpus = doc["load"], (doc.get("machine") or {}).get("usable_cpus")
+    load = (f"load {ld['start']} -> {ld['end']}" if ld["start"] is not None else "load n/a") + (
+        f" on {cpus} CPUs" if cpus else "")
+    v = doc["verdicts"]
+    print(f"\n  characteristics: measure() of {doc['characteristics']} characteristics of the bracket, "
+          f"{doc['points']} points, {doc['runs']} runs after a warm-up ({doc['warmup_ms']:.0f} ms)")
+    print(f"    verdicts: {v['ok']} ok, {v['nok']} nok, {v['not_measurable']} not measurable")
+    for key, label in (("cpu_ms", "CPU ms "), ("wall_ms", "wall ms")):
+        s = doc[key]
+        print(f"    {label}: median {s['median']:7.1f}  min {s['min']:7.1f}  max {s['max']:7.1f}   ({load})")
+    print(f"    target: CPU median <= {doc['target_ms']:g} ms (issue 28; CPU time is the figure to read on a shared "
+          f"machine): {'MET' if doc['met'] else 'NOT MET'} ({doc['cpu_ms']['median']:.1f} ms; {load})")
+
+
+def run_characteristics_bench(args: argparse.Namespace) -> int:
+    """``inspector bench --characteristics``; see the module docstring. Exit 0 target met, 1 not met."""
+    say = (lambda s: None) if args.quiet else (lambda s: print(s, flush=True))
+    figures_machine = machine()
+    doc = bench_characteristics(int(args.characteristics_points), int(args.characteristics_runs), progress=say)
+    doc["machine"] = figures_machine
+    if not args.quiet:
+        print_characteristics(doc)
+    if args.json:
+        say(f"\n  figures written to {write_figures(args.json, doc)}")
+    return 0 if doc["met"] else 1
