@@ -357,19 +357,7 @@ def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray, start: Mapping[str, Any]
         nm = {"axis": start["axis"], "apex": start["apex"], "half_angle_deg": start["half_angle_deg"]}
     m = MIN_POINTS[f.kind]
     if f.kind == "plane":
-        fit = fits.fit_plane(P, w, min_points=m)
-        if fit.params and float(fit.params["normal"] @ np.asarray(nm["normal"])) < 0:  # outward, as the CAD's
-            p = dict(fit.params)
-            p["normal"] = -p["normal"]
-            geometry = fit.perturbed  # its geometry at the local parameters given
-
-            def flipped(d: np.ndarray) -> dict[str, Any]:
-                g = geometry(d)
-                return {**g, "normal": -g["normal"]}
-
-            fit = fits.Fit(fit.kind, p, -fit.residuals, fit.names, fit.cov, fit.s, fit.n, fit.u, fit.amplification,
-                           fit.problem, flipped)
-        return fit
+        return _oriented(fits.fit_plane(P, w, min_points=m), np.asarray(nm["normal"]))  # outward, as the CAD's
     if f.kind == "cylinder":
         return fits.fit_cylinder(P, w, axis=np.asarray(nm["direction"]), point=np.asarray(nm["point"]),
                                  radius=float(nm["radius"]), min_points=m)
@@ -437,21 +425,82 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
     used = [by_id[fid] for fid in needed]
     owner = assign_points(P, used, reference, band_mm)
     fitted: dict[str, tuple[fits.Fit, np.ndarray]] = {}
+    groups_of: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # each fitted feature's points' groups and weights
     for k, f in enumerate(used):
         sel = (owner == k) & (w > 0)
         Pf, wf = P[sel], w[sel]
         fit, keep = _robust_fit(f, Pf, wf)
         if g is not None and fit.params:
             fit = fits.grouped(fit, g[sel][keep], wf[keep])
+            groups_of[f.id] = (g[sel][keep], wf[keep])
         fitted[f.id] = (fit, Pf[keep])
     out = []
     for c in characteristics:
-        out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm, u_surface_mm))
+        out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm, u_surface_mm, groups_of))
     return out
 
 
+#: Plane characteristics whose u the camera jackknife checks (:func:`_jackknife_u`).
+JACKKNIFE_KINDS = ("distance", "angle")
+#: Fewer cameras than this seeing a jackknifed characteristic's planes: not measurable.
+MIN_JACKKNIFE_CAMERAS = 3
+
+
+def _jackknife_u(c: Characteristic, fitted: Mapping[str, tuple[fits.Fit, np.ndarray]],
+                 groups_of: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> tuple[float, int] | None:
+    """The delete-one-camera jackknife standard uncertainty of a distance or angle between
+    planes, and the number of cameras it left out; None when the characteristic is of another
+    kind or the groups are unknown.
+
+    A plane's points lie along the edges its silhouettes show (never inside the face): when
+    a few cameras show an edge, its points' offset and the plane's tilt rest on those cameras,
+    and one camera's contour placed a little off tilts the plane -- an error no residual shows,
+    because the fit passes through every edge it is given. Refitting without each camera in
+    turn shows it (Quenouille-Tukey jackknife over the cameras, the units that err together:
+    ``u^2 = (G - 1) / G * sum (v_g - mean v)^2``). A plane fit is a closed-form eigenproblem,
+    so the G refits cost little; cylinders and cones (iterative fits) keep their design-effect
+    u (:func:`inspector.kernels.fits.grouped`).
+    """
+    if c.kind not in JACKKNIFE_KINDS or not all(fid in groups_of and fitted[fid][0].kind == "plane" for fid in c.features):
+        return None
+    cams = np.unique(np.concatenate([groups_of[fid][0] for fid in c.features]))
+    values = []
+    for cam in cams:
+        fs = []
+        for fid in c.features:
+            fit, pts = fitted[fid]
+            g, w = groups_of[fid]
+            m = g != cam
+            if m.sum() < MIN_POINTS["plane"]:
+                break
+            fs.append(_oriented(fits.fit_plane(pts[m], w[m]), fit.params["normal"]))  # as the full fit
+        if len(fs) == len(c.features):
+            values.append((fits.distance_between if c.kind == "distance" else fits.angle_between)(*fs)[0])
+    G = len(values)
+    if G < MIN_JACKKNIFE_CAMERAS:
+        return float("inf"), G
+    v = np.asarray(values)
+    return float(np.sqrt((G - 1) / G * float(((v - v.mean()) ** 2).sum()))), G
+
+
+def _oriented(fit: fits.Fit, normal: np.ndarray) -> fits.Fit:
+    """A plane ``fit`` with its normal turned to the side of ``normal`` (3,) (its residuals and
+    perturbed geometry with it)."""
+    if not fit.params or float(fit.params["normal"] @ normal) >= 0:
+        return fit
+    geometry = fit.perturbed  # its geometry at the local parameters given
+
+    def flipped(d: np.ndarray) -> dict[str, Any]:
+        g = geometry(d)
+        return {**g, "normal": -g["normal"]}
+
+    return fits.Fit(fit.kind, {**fit.params, "normal": -fit.params["normal"]}, -fit.residuals, fit.names, fit.cov,
+                    fit.s, fit.n, fit.u, fit.amplification, fit.problem, flipped, fit.design_effect)
+
+
 def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, tuple[fits.Fit, np.ndarray]],
-         max_u_fraction: float, slice_mm: float | None, u_surface_mm: float = 0.0) -> CharacteristicResult:
+         max_u_fraction: float, slice_mm: float | None, u_surface_mm: float = 0.0,
+         groups_of: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> CharacteristicResult:
     nominal = c.nominal_value(by_id)
     fs = [fitted[fid][0] for fid in c.features]
     npts = int(sum(ft.n for ft in fs))
@@ -471,6 +520,12 @@ def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, t
         return fail(f"{'-'.join(c.features)}: {e}")
     if not math.isfinite(value) or not math.isfinite(u):
         return fail(f"{'-'.join(c.features)}: the fit gives no finite value")
+    jack = _jackknife_u(c, fitted, groups_of or {})
+    if jack is not None:
+        if not math.isfinite(jack[0]):
+            return fail(f"{'-'.join(c.features)}: seen by {jack[1]} camera(s); at least {MIN_JACKKNIFE_CAMERAS} are "
+                        "needed to know how much it rests on one camera's contour")
+        u = max(u, jack[0])
     if u_surface_mm > 0:
         u = math.hypot(u, abs(offset_sensitivity(c, by_id, fitted)) * u_surface_mm)
     U = 2.0 * u

@@ -249,3 +249,63 @@ def test_features_command(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert text in err and "\n" not in err
     assert not (tmp_path / "x.jpg").exists()
+
+
+def _rim_points(rng, cams_per_edge: int, shared_um: float):
+    """Points of a 30 mm cube seen as a silhouette gauge sees it: on each face only along its
+    4 edges (a strip 0.2-1 mm wide inside each, never the middle of a face), each strip shown
+    by ``cams_per_edge`` cameras of its own; every camera's points share an offset of
+    ``shared_um`` (its contour placed off: all its points move), the points 2 um of noise.
+    Returns the points (N, 3) and their cameras (N,)."""
+    P, cams = [], []
+    cam = 0
+    for axis in range(3):
+        for side in (-15.0, 15.0):
+            a, b = [k for k in range(3) if k != axis]
+            for along, across in ((a, b), (b, a)):
+                for edge in (-15.0, 15.0):
+                    for _ in range(cams_per_edge):
+                        q = np.zeros((40, 3))
+                        q[:, axis] = side
+                        q[:, along] = rng.uniform(-14.0, 14.0, 40)
+                        q[:, across] = edge - np.sign(edge) * rng.uniform(0.2, 1.0, 40)
+                        q += shared_um * 1e-3 * rng.standard_normal(3) + 0.002 * rng.standard_normal((40, 3))
+                        P.append(q)
+                        cams.append(np.full(40, cam))
+                        cam += 1
+    return np.concatenate(P), np.concatenate(cams)
+
+
+def test_a_thickness_seen_only_along_edges_rests_on_its_cameras():
+    """A cube's faces seen only at their edges, each edge by two cameras whose contours are
+    off by a few um: least squares takes its thousands of points as independent and its u
+    misses the truth most of the time; by the cameras (the jackknife over them) the truth is
+    inside +-U about 95 % of the time. A face shown by fewer than three cameras: not measurable."""
+    ref = Reference.from_mesh("builtin:cube30", make_part("cube30"))
+    feats = find_features(ref.vertices, ref.faces)
+    ids = {tuple(np.round(f.nominal["normal"]).astype(int)): f.id for f in feats}
+    chars = [Characteristic("T", "distance", (ids[(-1, 0, 0)], ids[(1, 0, 0)]), -0.1, 0.1)]
+    rng = np.random.default_rng(28)
+    z_plain, z_cams, unmeasured = [], [], 0
+    for _ in range(80):
+        P, cams = _rim_points(rng, 2, 5.0)
+        plain = measure(chars, feats, P, None, ref, max_u_fraction=10.0)[0]
+        by_cam = measure(chars, feats, P, None, ref, max_u_fraction=10.0, groups=cams)[0]
+        z_plain.append(plain.deviation / plain.u)
+        if by_cam.verdict == "not_measurable":
+            # A face whose points came from two or three edges: without one camera its tilt
+            # is lost, and U says so (millimetres): the measurement cannot decide.
+            assert "the measurement cannot decide" in by_cam.reason
+            unmeasured += 1
+            continue
+        z_cams.append(by_cam.deviation / by_cam.u)
+    cover = lambda z: float(np.mean(np.abs(z) <= 2.0))  # noqa: E731
+    assert unmeasured <= 8 and len(z_cams) >= 72
+    assert cover(z_plain) < 0.5, cover(z_plain)
+    assert 0.9 <= cover(z_cams) <= 1.0, cover(z_cams)
+    assert np.median(np.abs(z_cams)) > 0.25  # not ten times too large either
+    # Every point from two cameras: the jackknife cannot tell how much rests on each.
+    P, _ = _rim_points(rng, 2, 5.0)
+    two = np.where(np.arange(len(P)) % 2 == 0, 0, 1)
+    r = measure(chars, feats, P, None, ref, groups=two)[0]
+    assert r.verdict == "not_measurable" and "seen by 2 camera(s)" in r.reason
