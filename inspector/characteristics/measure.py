@@ -455,27 +455,24 @@ def _jackknife_u(c: Characteristic, fitted: Mapping[str, tuple[fits.Fit, np.ndar
     A plane's points lie along the edges its silhouettes show (never inside the face): when
     a few cameras show an edge, its points' offset and the plane's tilt rest on those cameras,
     and one camera's contour placed a little off tilts the plane -- an error no residual shows,
-    because the fit passes through every edge it is given. Refitting without each camera in
-    turn shows it (Quenouille-Tukey jackknife over the cameras, the units that err together:
-    ``u^2 = (G - 1) / G * sum (v_g - mean v)^2``). A plane fit is a closed-form eigenproblem,
-    so the G refits cost little; cylinders and cones (iterative fits) keep their design-effect
-    u (:func:`inspector.kernels.fits.grouped`).
+    because the fit passes through every edge it is given. Computing the value again without
+    each camera in turn shows it (Quenouille-Tukey jackknife over the cameras, the units that
+    err together: ``u^2 = (G - 1) / G * sum (v_g - mean v)^2``). The plane refits are closed
+    form (:func:`inspector.kernels.fits.plane_jackknife`); cylinders and cones (iterative
+    fits) keep their design-effect u (:func:`inspector.kernels.fits.grouped`).
     """
     if c.kind not in JACKKNIFE_KINDS or not all(fid in groups_of and fitted[fid][0].kind == "plane" for fid in c.features):
         return None
-    cams = np.unique(np.concatenate([groups_of[fid][0] for fid in c.features]))
+    full = [fitted[fid][0].perturbed(np.zeros(len(fitted[fid][0].names))) for fid in c.features]
+    without = [fits.plane_jackknife(fitted[fid][1], groups_of[fid][1], groups_of[fid][0], fitted[fid][0].params["normal"],
+                                    min_points=MIN_POINTS["plane"]) for fid in c.features]
+    value = fits.geometric_distance if c.kind == "distance" else fits.geometric_angle
     values = []
-    for cam in cams:
-        fs = []
-        for fid in c.features:
-            fit, pts = fitted[fid]
-            g, w = groups_of[fid]
-            m = g != cam
-            if m.sum() < MIN_POINTS["plane"]:
-                break
-            fs.append(_oriented(fits.fit_plane(pts[m], w[m]), fit.params["normal"]))  # as the full fit
-        if len(fs) == len(c.features):
-            values.append((fits.distance_between if c.kind == "distance" else fits.angle_between)(*fs)[0])
+    for cam in sorted(set().union(*without)):
+        geos = [w[cam] if cam in w else g for w, g in zip(without, full)]  # a camera a plane did not see: as fitted
+        known = [geo for geo in geos if geo is not None]
+        if len(known) == len(geos):
+            values.append(value(*known))
     G = len(values)
     if G < MIN_JACKKNIFE_CAMERAS:
         return float("inf"), G

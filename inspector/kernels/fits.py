@@ -63,6 +63,8 @@ __all__ = [
     "between_groups_f",
     "design_effect",
     "grouped",
+    "geometric_angle",
+    "plane_jackknife",
     "flatness",
     "orthonormal_basis",
     "propagate",
@@ -887,12 +889,77 @@ def angle_between(a: Fit, b: Fit) -> tuple[float, float]:
     [0, 90] (a plane's normal sign is arbitrary); plane/axis: the angle between the axis and
     the plane (90 when the axis is along the normal).
     """
-    def f(ga: dict[str, Any], gb: dict[str, Any]) -> float:
-        c = abs(float(direction_of(ga) @ direction_of(gb)))
-        ang = float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-        return 90.0 - ang if _is_plane(ga) != _is_plane(gb) else ang
+    return propagate(geometric_angle, [a, b])
 
-    return propagate(f, [a, b])
+
+def geometric_angle(ga: dict[str, Any], gb: dict[str, Any]) -> float:
+    """The angle between two primitives (``perturbed`` dicts), degrees: see :func:`angle_between`."""
+    c = abs(float(direction_of(ga) @ direction_of(gb)))
+    ang = float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+    return 90.0 - ang if _is_plane(ga) != _is_plane(gb) else ang
+
+
+def plane_jackknife(points: np.ndarray, weights: np.ndarray | None, groups: np.ndarray, normal: np.ndarray, *,
+                    min_points: int = 10) -> dict[Any, dict[str, Any] | None]:
+    """The least-squares plane of ``points`` without each group in turn (a delete-one-group
+    jackknife), in one pass over the points.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        mm.
+    weights : (N,) float or None
+        Relative weights > 0 (None: all 1).
+    groups : (N,)
+        Each point's group (e.g. the camera whose contour gave it).
+    normal : (3,) float
+        The side each plane's normal is turned to (the full fit's normal).
+    min_points : int
+        A group whose removal leaves fewer points gets None.
+
+    Returns
+    -------
+    dict
+        Group label -> the plane without that group's points, as :func:`fit_plane`'s
+        geometry (``{"kind": "plane", "point", "normal"}``), or None.
+
+    Notes
+    -----
+    The weighted sums of each group (weight, first and second moments about the whole
+    centroid) are taken once; each leave-one-out plane is the smallest eigenvector of the
+    remaining scatter (the same plane :func:`fit_plane` fits to those points), so G refits
+    cost G 3 x 3 eigenproblems instead of G passes over the points.
+    """
+    P = np.asarray(points, float).reshape(-1, 3)
+    w = np.ones(len(P)) if weights is None else np.asarray(weights, float).ravel()
+    g = np.asarray(groups).ravel()
+    if w.shape != (len(P),) or g.shape != (len(P),):
+        raise FitError(f"weights and groups must be ({len(P)},), got {w.shape}, {g.shape}")
+    labels, idx = np.unique(g, return_inverse=True)
+    G = len(labels)
+    c0 = (w[:, None] * P).sum(0) / max(float(w.sum()), 1e-300)
+    d = P - c0  # moments about the centroid: no cancellation for a part far from the origin
+    count = np.bincount(idx, minlength=G)
+    W = np.bincount(idx, weights=w, minlength=G)
+    S = np.stack([np.bincount(idx, weights=w * d[:, i], minlength=G) for i in range(3)], axis=1)
+    M = np.empty((G, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            M[:, i, j] = M[:, j, i] = np.bincount(idx, weights=w * d[:, i] * d[:, j], minlength=G)
+    Wt, St, Mt = W.sum(), S.sum(0), M.sum(0)
+    nrm0 = np.asarray(normal, float)
+    out: dict[Any, dict[str, Any] | None] = {}
+    for k, label in enumerate(labels):
+        Wk = Wt - W[k]
+        if len(P) - count[k] < min_points or Wk <= 0:
+            out[label.item() if hasattr(label, "item") else label] = None
+            continue
+        mean = (St - S[k]) / Wk
+        C = (Mt - M[k]) / Wk - np.outer(mean, mean)
+        n = np.linalg.eigh(C)[1][:, 0]
+        n = n if float(n @ nrm0) >= 0 else -n
+        out[label.item() if hasattr(label, "item") else label] = {"kind": "plane", "point": c0 + mean, "normal": n}
+    return out
 
 
 def _point_of(geo: dict[str, Any]) -> np.ndarray:

@@ -302,3 +302,23 @@ def test_points_that_err_together_are_not_counted_as_independent():
     assert 0.5 < np.median(np.abs(grouped)) < 0.9
     assert np.median(independent) < 1.2  # no shared error: u about as before (never smaller)
     assert min(independent) >= 1.0
+
+
+def test_plane_jackknife_is_fit_plane_without_each_group():
+    """Each leave-one-group-out plane from the group sums is fit_plane of the remaining points
+    (far from the origin: the moments are taken about the centroid)."""
+    rng = np.random.default_rng(13)
+    P = plane_points(rng, 900, [500.0, -300.0, 200.0], [0.2, 0.3, 1.0], 30.0, sigma=0.01)
+    g = rng.integers(0, 9, len(P))
+    w = rng.uniform(0.2, 1.0, len(P))
+    nrm = np.array([0.2, 0.3, 1.0]) / np.linalg.norm([0.2, 0.3, 1.0])
+    out = F.plane_jackknife(P, w, g, nrm)
+    assert sorted(out) == list(range(9))
+    for k in range(9):
+        ref = F.fit_plane(P[g != k], w[g != k])
+        n = ref.params["normal"] * np.sign(ref.params["normal"] @ nrm)
+        np.testing.assert_allclose(out[k]["normal"], n, atol=1e-9)
+        np.testing.assert_allclose(out[k]["point"], ref.params["point"], atol=1e-9)
+        assert out[k]["normal"] @ nrm > 0
+    few = F.plane_jackknife(P[:15], None, np.r_[np.zeros(10, int), np.ones(5, int)], nrm)
+    assert few[0] is None and few[1] is not None  # without group 0, 5 points: too few
