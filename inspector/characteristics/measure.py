@@ -435,8 +435,9 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
             groups_of[f.id] = (g[sel][keep], wf[keep])
         fitted[f.id] = (fit, Pf[keep])
     out = []
+    jack: dict[str, dict[Any, Any]] = {}  # each plane's leave-one-camera-out planes, made once
     for c in characteristics:
-        out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm, u_surface_mm, groups_of))
+        out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm, u_surface_mm, groups_of, jack))
     return out
 
 
@@ -447,7 +448,8 @@ MIN_JACKKNIFE_CAMERAS = 3
 
 
 def _jackknife_u(c: Characteristic, fitted: Mapping[str, tuple[fits.Fit, np.ndarray]],
-                 groups_of: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> tuple[float, int] | None:
+                 groups_of: Mapping[str, tuple[np.ndarray, np.ndarray]],
+                 cache: dict[str, dict[Any, Any]] | None = None) -> tuple[float, int] | None:
     """The delete-one-camera jackknife standard uncertainty of a distance or angle between
     planes, and the number of cameras it left out; None when the characteristic is of another
     kind or the groups are unknown.
@@ -464,8 +466,12 @@ def _jackknife_u(c: Characteristic, fitted: Mapping[str, tuple[fits.Fit, np.ndar
     if c.kind not in JACKKNIFE_KINDS or not all(fid in groups_of and fitted[fid][0].kind == "plane" for fid in c.features):
         return None
     full = [fitted[fid][0].perturbed(np.zeros(len(fitted[fid][0].names))) for fid in c.features]
-    without = [fits.plane_jackknife(fitted[fid][1], groups_of[fid][1], groups_of[fid][0], fitted[fid][0].params["normal"],
-                                    min_points=MIN_POINTS["plane"]) for fid in c.features]
+    cache = {} if cache is None else cache
+    for fid in c.features:
+        if fid not in cache:
+            cache[fid] = fits.plane_jackknife(fitted[fid][1], groups_of[fid][1], groups_of[fid][0],
+                                              fitted[fid][0].params["normal"], min_points=MIN_POINTS["plane"])
+    without = [cache[fid] for fid in c.features]
     value = fits.geometric_distance if c.kind == "distance" else fits.geometric_angle
     values = []
     for cam in sorted(set().union(*without)):
@@ -497,7 +503,8 @@ def _oriented(fit: fits.Fit, normal: np.ndarray) -> fits.Fit:
 
 def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, tuple[fits.Fit, np.ndarray]],
          max_u_fraction: float, slice_mm: float | None, u_surface_mm: float = 0.0,
-         groups_of: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> CharacteristicResult:
+         groups_of: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+         jack: dict[str, dict[Any, Any]] | None = None) -> CharacteristicResult:
     nominal = c.nominal_value(by_id)
     fs = [fitted[fid][0] for fid in c.features]
     npts = int(sum(ft.n for ft in fs))
@@ -517,12 +524,12 @@ def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, t
         return fail(f"{'-'.join(c.features)}: {e}")
     if not math.isfinite(value) or not math.isfinite(u):
         return fail(f"{'-'.join(c.features)}: the fit gives no finite value")
-    jack = _jackknife_u(c, fitted, groups_of or {})
-    if jack is not None:
-        if not math.isfinite(jack[0]):
-            return fail(f"{'-'.join(c.features)}: seen by {jack[1]} camera(s); at least {MIN_JACKKNIFE_CAMERAS} are "
-                        "needed to know how much it rests on one camera's contour")
-        u = max(u, jack[0])
+    by_camera = _jackknife_u(c, fitted, groups_of or {}, jack)
+    if by_camera is not None:
+        if not math.isfinite(by_camera[0]):
+            return fail(f"{'-'.join(c.features)}: seen by {by_camera[1]} camera(s); at least {MIN_JACKKNIFE_CAMERAS} "
+                        "are needed to know how much it rests on one camera's contour")
+        u = max(u, by_camera[0])
     if u_surface_mm > 0:
         u = math.hypot(u, abs(offset_sensitivity(c, by_id, fitted)) * u_surface_mm)
     U = 2.0 * u
