@@ -20,13 +20,11 @@ from typing import Any
 from PySide6.QtCore import QModelIndex, QPersistentModelIndex, QPointF, QRect, QRectF, QSize, Qt, Signal
 from PySide6.QtGui import QColor, QPainter, QPainterPath, QPen
 from PySide6.QtWidgets import (
-    QAbstractItemView,
     QHeaderView,
     QLabel,
     QSizePolicy,
     QStyledItemDelegate,
     QStyleOptionViewItem,
-    QTableWidget,
     QTableWidgetItem,
     QTabWidget,
     QVBoxLayout,
@@ -37,7 +35,7 @@ from inspector.characteristics.charts import I_CHART_K
 from inspector.characteristics.definitions import rows_of
 from inspector_frontends.gui.i18n import number
 from inspector_frontends.gui.viewmodel import CharacteristicRow, ResultView
-from inspector_frontends.gui.widgets import QT_TRANSLATE_NOOP, DefectTable
+from inspector_frontends.gui.widgets import QT_TRANSLATE_NOOP, DefectTable, RowTable
 
 __all__ = ["ResultTabs", "CharacteristicsPanel", "CharacteristicsTable", "TrendChart", "TrendPoint", "trend_of", "VERDICTS"]
 
@@ -146,7 +144,7 @@ class _BarDelegate(QStyledItemDelegate):
         painter.restore()
 
 
-class CharacteristicsTable(QTableWidget):
+class CharacteristicsTable(RowTable):
     """One row per characteristic in the recipe's order; selecting one emits
     ``selected(id)``."""
 
@@ -157,15 +155,8 @@ class CharacteristicsTable(QTableWidget):
                QT_TRANSLATE_NOOP("CharacteristicsTable", "U (k=2)"), QT_TRANSLATE_NOOP("CharacteristicsTable", "verdict"))
 
     def __init__(self, parent: QWidget | None = None) -> None:
-        super().__init__(0, len(self.HEADERS), parent)
-        self.setHorizontalHeaderLabels([self.tr(h) for h in self.HEADERS])
-        self.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
-        self.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
-        self.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.verticalHeader().setVisible(False)
-        self.verticalHeader().setDefaultSectionSize(34)  # touch-size rows
+        super().__init__(parent)
         header = self.horizontalHeader()
-        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         # The label takes what is left (elided, whole in its tooltip); the bar a fixed width.
         header.setSectionResizeMode(1, QHeaderView.ResizeMode.Stretch)
         header.setSectionResizeMode(BAR_COLUMN, QHeaderView.ResizeMode.Fixed)

@@ -28,7 +28,7 @@ from PySide6.QtWidgets import (
 from inspector_frontends.gui.i18n import number
 from inspector_frontends.gui.viewmodel import ResultView
 
-__all__ = ["VERDICT_STYLE", "VerdictBanner", "DefectTable", "verdict_word", "QT_TRANSLATE_NOOP", "PICTURES", "HISTORY",
+__all__ = ["VERDICT_STYLE", "VerdictBanner", "RowTable", "DefectTable", "verdict_word", "QT_TRANSLATE_NOOP", "PICTURES", "HISTORY",
            "SHIFT"]
 
 
@@ -134,7 +134,24 @@ class VerdictBanner(QFrame):
                        "   \u00b7   ".join(b for b in bits if b), view.reason)
 
 
-class DefectTable(QTableWidget):
+class RowTable(QTableWidget):
+    """An operator's read-only table: its class's ``HEADERS`` (translated in the class's
+    context), whole rows selected one at a time, touch-size rows, columns sized to contents."""
+
+    HEADERS: tuple[str, ...] = ()
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(0, len(self.HEADERS), parent)
+        self.setHorizontalHeaderLabels([QCoreApplication.translate(type(self).__name__, h) for h in self.HEADERS])
+        self.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
+        self.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
+        self.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.verticalHeader().setVisible(False)
+        self.verticalHeader().setDefaultSectionSize(34)  # touch-size rows
+        self.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+
+
+class DefectTable(RowTable):
     """One row per defect cluster; selecting a row emits ``defect_selected(row index)``."""
 
     defect_selected = Signal(int)
@@ -143,15 +160,8 @@ class DefectTable(QTableWidget):
                QT_TRANSLATE_NOOP("DefectTable", "extent mm"), QT_TRANSLATE_NOOP("DefectTable", "cameras"))
 
     def __init__(self, parent: QWidget | None = None) -> None:
-        super().__init__(0, len(self.HEADERS), parent)
-        self.setHorizontalHeaderLabels([self.tr(h) for h in self.HEADERS])
-        self.setSelectionBehavior(QAbstractItemView.SelectionBehavior.SelectRows)
-        self.setSelectionMode(QAbstractItemView.SelectionMode.SingleSelection)
-        self.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.verticalHeader().setVisible(False)
-        self.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        super().__init__(parent)
         self.horizontalHeader().setStretchLastSection(True)
-        self.verticalHeader().setDefaultSectionSize(34)  # touch-size rows
         self.setAccessibleName(self.tr("defect table"))
         self.itemSelectionChanged.connect(self._selected)
 
