@@ -1,7 +1,7 @@
 """Measured characteristics (issue 28): from a deviation map to a gauge's list of values.
 
 * :mod:`inspector.kernels.features` finds the reference's geometric features (planes,
-  cylinders, cones, spheres) and :mod:`inspector.kernels.fits` fits them with their
+  cylinders, cones, spheres, tori) and :mod:`inspector.kernels.fits` fits them with their
   uncertainty;
 * :mod:`.measure`: the characteristics a recipe defines (:class:`~.measure.Characteristic`),
   checked against the features, and measured from one inspection's BCPS points

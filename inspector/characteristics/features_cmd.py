@@ -1,7 +1,7 @@
 """``inspector features REFERENCE [--json] [--picture PNG]``: the geometric features of a reference.
 
 Built-in plugin ``features`` (a tool, like ``feasibility``): it lists the planes, cylinders,
-cones and spheres :func:`inspector.kernels.features.find_features` finds on the CAD mesh --
+cones, spheres and tori :func:`inspector.kernels.features.find_features` finds on the CAD mesh --
 their ids, the ids a recipe's ``[[characteristics]]`` name -- with their nominal parameters,
 area and triangle count; ``--json`` prints ``[{id, kind, nominal, area_mm2, triangles}]``;
 ``--picture`` draws the mesh with each feature coloured and labelled (matplotlib, off-screen).
@@ -34,9 +34,10 @@ __all__ = ["add_parser", "describe", "draw_features", "run"]
 
 def add_parser(sub: argparse._SubParsersAction[Any]) -> None:
     p = sub.add_parser(
-        "features", help="the reference's geometric features (planes, cylinders, cones, spheres) and their ids",
-        description="Find the geometric features of a reference mesh: planes, cylinders (bosses and bores), cones "
-                    "and spheres, each with a stable id (F01 ...), its nominal parameters, area and triangle count. "
+        "features", help="the reference's geometric features (planes, cylinders, cones, spheres, tori) and their ids",
+        description="Find the geometric features of a reference mesh: planes, cylinders (bosses and bores), cones, "
+                    "spheres and tori (fillets round circular edges, grooves), each with a stable id (F01 ...), its "
+                    "nominal parameters, area and triangle count. "
                     "A recipe's [[characteristics]] name these ids.")
     p.add_argument("reference", help="the reference: a mesh file (STL, PLY, OBJ; mm) or builtin:NAME")
     p.add_argument("--json", action="store_true", help="print a JSON list of {id, kind, nominal, area_mm2, triangles}")
@@ -158,6 +159,7 @@ def draw_features(vertices: np.ndarray, faces: np.ndarray, features: list[Featur
                           "alpha": 0.9})
     handles = [plt.Rectangle((0, 0), 1, 1, fc=_COLOURS[k % len(_COLOURS)]) for k in range(len(features))]
     labels = [f"{f.id} {f.kind}" + (f" r{f.nominal['radius']:.4g}" if "radius" in f.nominal else "")
+              + (f" R{f.nominal['major_radius']:.4g} r{f.nominal['minor_radius']:.4g}" if f.kind == "torus" else "")
               + (f" {f.nominal['half_angle_deg']:.3g} deg" if "half_angle_deg" in f.nominal else "") for f in features]
     if features:
         fig.legend(handles, labels, loc="center right", fontsize=7, ncol=1 if len(features) <= 30 else 2, frameon=False)
@@ -177,4 +179,4 @@ def _areas(tri: np.ndarray) -> np.ndarray:
 def inspector_register_commands(registry: CommandRegistry) -> None:
     """``inspector features``: a built-in plugin (entry point ``features``), like ``feasibility``."""
     registry.add(CommandSpec("features", add_parser, run,
-                             "the reference's geometric features (planes, cylinders, cones, spheres) and their ids"))
+                             "the reference's geometric features (planes, cylinders, cones, spheres, tori) and their ids"))

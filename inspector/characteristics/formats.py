@@ -180,7 +180,7 @@ _QIF_KIND = {"diameter": "Diameter", "radius": "Radius", "distance": "DistanceBe
              "position": "Position", "flatness": "Flatness", "roundness": "Circularity", "cylindricity": "Cylindricity"}
 #: Kinds whose QIF definition holds a single tolerance value (a zone), not limits.
 _QIF_ZONE = ("position", "flatness", "roundness", "cylindricity")
-_QIF_FEATURE = {"plane": "Plane", "cylinder": "Cylinder", "cone": "Cone", "sphere": "Sphere"}
+_QIF_FEATURE = {"plane": "Plane", "cylinder": "Cylinder", "cone": "Cone", "sphere": "Sphere", "torus": "Torus"}
 
 
 class _Ids:
@@ -314,6 +314,11 @@ def _qif_features(used: list[str], by_fid: dict[str, Any], ids: _Ids) -> tuple[s
             fdef.append(f'<SphereFeatureDefinition id="{d}"><InternalExternal>{ie}</InternalExternal>'
                         f"<Diameter>{2.0 * float(nm['radius'])!r}</Diameter></SphereFeatureDefinition>")
             geo = f"<Location>{_v3(nm['centre'])}</Location>"
+        elif f.kind == "torus":
+            fdef.append(f'<TorusFeatureDefinition id="{d}"><InternalExternal>{ie}</InternalExternal>'
+                        f"<MinorDiameter>{2.0 * float(nm['minor_radius'])!r}</MinorDiameter>"
+                        f"<MajorDiameter>{2.0 * float(nm['major_radius'])!r}</MajorDiameter></TorusFeatureDefinition>")
+            geo = f"<Location>{_v3(nm['centre'])}</Location><AxisVector>{_v3(nm['axis'])}</AxisVector>"
         else:  # cone
             fdef.append(f'<ConeFeatureDefinition id="{d}"><InternalExternal>{ie}</InternalExternal>'
                         f"<Angle>{2.0 * float(nm['half_angle_deg'])!r}</Angle></ConeFeatureDefinition>")

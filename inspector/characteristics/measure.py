@@ -56,10 +56,10 @@ __all__ = [
 #: Characteristic kinds and the feature kinds each accepts (per feature position).
 KINDS: dict[str, tuple[str, ...]] = {
     "diameter": ("cylinder", "sphere"),
-    "radius": ("cylinder", "sphere"),
+    "radius": ("cylinder", "sphere", "torus"),  # a torus's: its tube's (a fillet's radius)
     "distance": ("plane", "cylinder", "cone", "sphere"),
     "angle": ("plane", "cylinder", "cone"),
-    "position": ("cylinder", "cone", "sphere"),
+    "position": ("cylinder", "cone", "sphere", "torus"),  # a torus's: its centre's, as a sphere's
     "flatness": ("plane",),
     "roundness": ("cylinder", "cone"),
     "cylindricity": ("cylinder",),
@@ -73,7 +73,7 @@ CRITICALITY = ("minor", "major", "critical", "key")
 #: Two planes or axes closer than this to parallel (degrees) have a distance.
 PARALLEL_DEG = 1.0
 #: Points a fit needs beyond its parameter count.
-MIN_POINTS = {"plane": 10, "cylinder": 20, "cone": 24, "sphere": 16}
+MIN_POINTS = {"plane": 10, "cylinder": 20, "cone": 24, "sphere": 16, "torus": 28}
 
 
 def unit_of(kind: str) -> str:
@@ -212,7 +212,7 @@ class Characteristic:
         if self.kind == "diameter":
             return 2.0 * float(geo[0]["radius"])
         if self.kind == "radius":
-            return float(geo[0]["radius"])
+            return float(geo[0]["minor_radius" if geo[0]["kind"] == "torus" else "radius"])
         if self.kind == "distance":
             return fits.geometric_distance(geo[0], geo[1])
         if self.kind == "angle":
@@ -355,6 +355,8 @@ def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray, start: Mapping[str, Any]
         nm = {"direction": start["direction"], "point": start["point"], "radius": start["radius"]}
     elif start and f.kind == "cone":
         nm = {"axis": start["axis"], "apex": start["apex"], "half_angle_deg": start["half_angle_deg"]}
+    elif start and f.kind == "torus":
+        nm = {k: start[k] for k in ("centre", "axis", "major_radius", "minor_radius")}
     m = MIN_POINTS[f.kind]
     if f.kind == "plane":
         return _oriented(fits.fit_plane(P, w, min_points=m), np.asarray(nm["normal"]))  # outward, as the CAD's
@@ -366,6 +368,9 @@ def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray, start: Mapping[str, Any]
                              half_angle_deg=float(nm["half_angle_deg"]), min_points=m)
     if f.kind == "sphere":
         return fits.fit_sphere(P, w, min_points=m)
+    if f.kind == "torus":
+        return fits.fit_torus(P, w, axis=np.asarray(nm["axis"]), centre=np.asarray(nm["centre"]),
+                              major_radius=float(nm["major_radius"]), minor_radius=float(nm["minor_radius"]), min_points=m)
     raise ValueError(f"{f.id}: cannot fit a {f.kind}")
 
 
@@ -545,13 +550,16 @@ def _one(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str, t
 def _offset(geo: dict[str, Any], f: Feature, delta: float) -> dict[str, Any]:
     """A fitted primitive's surface moved by ``delta`` mm along its outward normal (the part
     grown by ``delta`` there): a plane along its (outward) normal, a boss's or a convex
-    sphere's radius up, a bore's down; a cone's apex along its axis. Axes do not move."""
+    sphere's radius up, a bore's down; a cone's apex along its axis; a torus's tube radius up
+    when convex (a rounded edge), down when concave (a groove). Axes do not move."""
     g = dict(geo)
     sign = 1.0 if f.nominal.get("convex", True) else -1.0
     if g["kind"] == "plane":
         g["point"] = np.asarray(g["point"], float) + delta * fits.direction_of(g)
     elif g["kind"] in ("cylinder", "sphere"):
         g["radius"] = float(g["radius"]) + sign * delta
+    elif g["kind"] == "torus":
+        g["minor_radius"] = float(g["minor_radius"]) + sign * delta
     elif g["kind"] == "cone":
         alpha = math.radians(float(g["half_angle_deg"]))
         g["apex"] = np.asarray(g["apex"], float) - sign * delta / math.sin(alpha) * fits.direction_of(g)
@@ -569,7 +577,8 @@ def offset_sensitivity(c: Characteristic, by_id: Mapping[str, Feature],
     threshold against the edge profile, the calibration's scale: a fraction of a pixel), so
     a part looks grown or shrunk by a common ``delta`` -- one systematic error shared by all
     its points, which no number of points averages away. A diameter moves by ``2 delta``
-    (a bore's by ``-2 delta``), a thickness between faces facing away by ``2 delta``, a step
+    (a bore's by ``-2 delta``), a radius by ``delta`` (a bore's, a groove's or an inner
+    fillet's by ``-delta``), a thickness between faces facing away by ``2 delta``, a step
     between faces facing the same way by 0, a distance between axes, an angle, a position
     or a form by 0."""
     if c.kind in ("diameter", "radius"):
@@ -596,8 +605,9 @@ def _value(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str,
     fit, pts = fitted[c.features[0]]
     if kind in ("diameter", "radius"):
         k = 2.0 if kind == "diameter" else 1.0
-        i = fit.names.index("radius")
-        return k * float(fit.params["radius"]), k * float(np.sqrt(fit.cov[i, i]))
+        name = "minor_radius" if fit.kind == "torus" else "radius"  # a torus's: its tube's
+        i = fit.names.index(name)
+        return k * float(fit.params[name]), k * float(np.sqrt(fit.cov[i, i]))
     if kind == "distance":
         return fits.distance_between(fit, fitted[c.features[1]][0])
     if kind == "angle":
@@ -615,7 +625,7 @@ def _value(c: Characteristic, by_id: Mapping[str, Feature], fitted: Mapping[str,
 
 def _position(f: Feature, fit: fits.Fit) -> tuple[float, float]:
     nm = _nominal_geometry(f)
-    if f.kind == "sphere":
+    if f.kind in ("sphere", "torus"):
         c0 = nm["centre"]
 
         def zone(g: dict[str, Any]) -> float:

@@ -1,9 +1,10 @@
-"""Geometric features of a triangle mesh: planes, cylinders, cones and spheres as face sets.
+"""Geometric features of a triangle mesh: planes, cylinders, cones, spheres and tori as face sets.
 
 A CAD mesh is its B-rep's faces tessellated: a plane is a set of coplanar triangles, a
 cylinder a ring of long facets whose normals are all perpendicular to one axis, a cone facets
 whose normals make one angle with its axis (and whose planes all pass through the apex), a
-sphere facets whose normals all point at one centre. Every vertex of such a tessellation lies
+sphere facets whose normals all point at one centre, a torus (a fillet round a circular edge,
+a groove) facets whose normal lines all meet its axis. Every vertex of such a tessellation lies
 on the true surface (the facets are chords inside a convex surface, outside a concave one), so
 a primitive fitted to the *vertices* recovers the CAD's nominal exactly, whatever the facet
 size. The segmentation:
@@ -14,19 +15,22 @@ size. The segmentation:
 2. **Smooth groups** -- planar regions meeting at a dihedral angle below ``smooth_deg`` (the
    facets of a curved surface: 2.8 degrees for 128 sections, 11 for 32) form connected groups;
    a region several times larger than the group's median (a flat face tangent to a curved one,
-   e.g. the sides of a keyway slot) stays a plane.
+   e.g. the sides of a keyway slot) stays a plane -- but large regions smoothly adjacent to each
+   other (a cylinder's long facets next to a tangent fillet's small ones) form a group.
 3. **Primitive fitting** -- each group's vertices are fitted with a cylinder (axis: the
    direction most perpendicular to every facet normal), a sphere (centre: the point nearest to
    every facet's normal line) and a cone (axis: the normal of the circle the facet normals
    lie on; apex: the point nearest to every facet plane) by
    :mod:`inspector.kernels.fits`; the simplest that holds 95 % of the vertices within
-   ``dist_tol_mm`` wins. A group that no single primitive fits is split by growing regions from
-   seeds, accepting each neighbour whose vertices the current primitive holds.
+   ``dist_tol_mm`` wins; only when none holds is a torus tried (axis: the line every facet's
+   normal line meets). A group that no single primitive fits is split by growing regions from
+   seeds, accepting each neighbour whose vertices the current primitive holds (tori are not
+   grown: what the seeds leave, connected, is tried whole).
 4. Planar regions not part of a curved feature, with at least ``min_area_mm2``, are planes.
 
 Ids are stable: the same mesh gives the same features in the same order -- by kind (plane,
 cylinder, cone, sphere, torus), then area (largest first), then centroid -- numbered ``F01``,
-``F02`` ... . Tori are not recognised yet (their faces stay unassigned).
+``F02`` ... .
 
 Units: mm, degrees in the parameters and nominals.
 """
@@ -73,7 +77,10 @@ class Feature:
         largest component positive), ``radius``, ``length``, ``convex`` (True: a boss or an
         outer cylinder; False: a bore). ``cone``: ``apex``, ``axis`` (unit, from the apex
         into the cone), ``half_angle_deg``, ``convex``. ``sphere``: ``centre``, ``radius``,
-        ``convex``.
+        ``convex``. ``torus``: ``centre`` (of the circle the tube's centre runs on), ``axis``
+        (unit, largest component positive), ``major_radius`` (that circle's), ``minor_radius``
+        (the tube's: a fillet's radius), ``convex`` (True: material inside the tube, a rounded
+        outer edge; False: a fillet in an inner corner, a groove).
     faces : (T,) int
         Indices of its triangles in the mesh, sorted.
     area_mm2 : float
@@ -219,13 +226,19 @@ def _residual(prim: dict[str, Any], P: np.ndarray) -> np.ndarray:
         rho = np.linalg.norm(d - h[:, None] * a, axis=1)
         al = np.radians(prim["half_angle_deg"])
         return rho * np.cos(al) - h * np.sin(al)
+    if kind == "torus":
+        d = P - prim["centre"]
+        h = d @ prim["axis"]
+        rho = np.linalg.norm(d - h[:, None] * prim["axis"], axis=1)
+        return np.hypot(rho - prim["major_radius"], h) - prim["minor_radius"]
     raise ValueError(kind)
 
 
 def _fit_primitives(P: np.ndarray, nrm: np.ndarray, wts: np.ndarray, cent: np.ndarray, tol: float,
-                    size: float) -> dict[str, Any] | None:
-    """The simplest primitive (sphere, cylinder, cone) that holds the vertices ``P`` (M, 3)
-    of facets with normals ``nrm`` (K, 3), areas ``wts`` (K,), centroids ``cent`` (K, 3)."""
+                    size: float, torus: bool = True) -> dict[str, Any] | None:
+    """The simplest primitive (sphere, cylinder, cone; a torus when none of them and ``torus``)
+    that holds the vertices ``P`` (M, 3) of facets with normals ``nrm`` (K, 3), areas ``wts``
+    (K,), centroids ``cent`` (K, 3)."""
     if len(P) < 6 or len(nrm) < 3:
         return None
     M = (nrm * wts[:, None]).T @ nrm
@@ -277,6 +290,13 @@ def _fit_primitives(P: np.ndarray, nrm: np.ndarray, wts: np.ndarray, cent: np.nd
             if f.params and 0.5 < f.params["half_angle_deg"] < 89.5 and np.linalg.norm(f.params["apex"] - P.mean(0)) < 2 * size:
                 judge({"kind": "cone", "apex": f.params["apex"], "axis": f.params["axis"],
                        "half_angle_deg": f.params["half_angle_deg"]}, 6)
+    if not cands and torus:
+        # A torus only when no simpler primitive holds the vertices: with seven parameters it
+        # would hold many a patch of a cylinder, cone or sphere as well, so the simplest that
+        # holds still wins -- and meshes without tori pay nothing for it.
+        tor = _torus(P, nrm, wts, cent, size)
+        if tor is not None:
+            judge(tor, 7)
     if not cands:
         return None
     cands.sort(key=lambda c: (c[0], c[1]))
@@ -285,6 +305,26 @@ def _fit_primitives(P: np.ndarray, nrm: np.ndarray, wts: np.ndarray, cent: np.nd
         if c[1] < best[1] / 3.0:
             best = c
     return best[2]
+
+
+def _torus(P: np.ndarray, nrm: np.ndarray, wts: np.ndarray, cent: np.ndarray, size: float) -> dict[str, Any] | None:
+    """A torus fitted to the vertices ``P`` (M, 3), its axis started as the line that every
+    facet's normal line (through its centroid ``cent``; weight: area ``wts``) meets, as those of
+    a surface of revolution do: in Plücker coordinates, ``n_i . m + m_i . a = 0`` for each facet
+    line ``(n_i, m_i)`` -- the least-squares null vector ``(a, m)`` of a linear system."""
+    cw = (cent * wts[:, None]).sum(0) / max(float(wts.sum()), 1e-300)
+    A = np.column_stack([np.cross(cent - cw, nrm) / size, nrm]) * np.sqrt(wts)[:, None]
+    v = np.linalg.svd(A, full_matrices=False)[2][-1]
+    a, m = v[:3], v[3:] * size
+    na = float(np.linalg.norm(a))
+    if na < 1e-6:  # the normals all perpendicular to one direction: a cylinder's, not a torus's
+        return None
+    f = fits.fit_torus(P, axis=a / na, centre=cw + np.cross(a, m) / na ** 2)
+    return _torus_of(f) if f.params and max(f.params["minor_radius"], f.params["major_radius"]) < size else None
+
+
+def _torus_of(f: fits.Fit) -> dict[str, Any] | None:
+    return {"kind": "torus", **{k: f.params[k] for k in ("centre", "axis", "major_radius", "minor_radius")}} if f.params else None
 
 
 # --------------------------------------------------------------------------- segmentation
@@ -369,8 +409,11 @@ def find_features(vertices: np.ndarray, faces: np.ndarray, *, angle_tol_deg: flo
                 prim, regs = grown
                 used[regs] = True
                 found.append((prim["kind"], prim, np.concatenate([members[r] for r in regs])))
+        for prim, regs in _leftover_tori(len(g), in_g & ~used, rp, nreg, region_data, tol, size):
+            used[regs] = True
+            found.append(("torus", prim, region_data(regs)[0]))
 
-    found = _merge_curved(found, pairs, len(Fm), V, Fm, tol)
+    found = _merge_curved(_absorb_tori(found, label, used, members, pairs, V, Fm, tol), pairs, len(Fm), V, Fm, tol)
     for r in range(nreg):
         if not used[r] and reg_area[r] >= min_area and reg_area[r] > 0:
             n_ = reg_normal[r]
@@ -484,7 +527,14 @@ def _smooth_groups(label: np.ndarray, nreg: int, pairs: np.ndarray, normals: np.
             med = float(np.median(reg_area[g]))
             large[g] = reg_area[g] > _LARGE * med
     keep = ~large[rp[:, 0]] & ~large[rp[:, 1]]
-    rp = rp[keep]
+    # Large regions smoothly adjacent to each other (a cylinder's long facets next to a tangent
+    # fillet's small ones) form groups of their own, with the same rule within them.
+    rp2 = rp[large[rp[:, 0]] & large[rp[:, 1]]]
+    large2 = np.zeros(nreg, bool)
+    for g in _components(nreg, rp2) if len(rp2) else []:
+        if len(g) > 1:
+            large2[g] = reg_area[g] > _LARGE * float(np.median(reg_area[g]))
+    rp = np.concatenate([rp[keep], rp2[~large2[rp2[:, 0]] & ~large2[rp2[:, 1]]]])
     return rp, _components(nreg, rp)
 
 
@@ -525,6 +575,36 @@ def _merge_curved(found: list[tuple[str, dict[str, Any], np.ndarray]], pairs: np
     return out
 
 
+def _absorb_tori(found: list[tuple[str, dict[str, Any], np.ndarray]], label: np.ndarray, used: np.ndarray,
+                 members: list[np.ndarray], pairs: np.ndarray, V: np.ndarray, Fm: np.ndarray,
+                 tol: float) -> list[tuple[str, dict[str, Any], np.ndarray]]:
+    """Tori with the unused planar regions and other curved features that touch them and lie on
+    them (``used`` updated): where a torus faces along its axis (next to the face a fillet blends
+    into) its facets turn so little that a few grow into one region too large for the smooth
+    group -- and a ring of such regions, between two circles of vertices, is a cone."""
+    nf = len(found)
+    piece = np.full(len(Fm), -1, np.int64)  # each triangle's feature, or nf + its unused region
+    for j, (_, _, fcs) in enumerate(found):
+        piece[fcs] = j
+    free = ~used[label]
+    piece[free] = nf + label[free]
+    for k in range(nf):
+        kind, prim, fcs = found[k]
+        while kind == "torus":
+            mine = piece == k
+            touch = np.unique(np.concatenate([piece[pairs[mine[pairs[:, 0]], 1]], piece[pairs[mine[pairs[:, 1]], 0]]]))
+            new = [int(j) for j in touch if j >= 0 and j != k and (j >= nf or found[j][0] != "torus")
+                   and np.abs(_residual(prim, _vertices_of(Fm, np.flatnonzero(piece == j), V))).max() <= tol]
+            if not new:
+                break
+            piece[np.isin(piece, new)] = k
+            fcs = np.flatnonzero(piece == k)
+        found[k] = (kind, prim, fcs)
+    ours = (piece >= 0) & (piece < nf)
+    used[label[ours]] = True
+    return [found[j] for j in np.unique(piece[ours])]
+
+
 def _members(label: np.ndarray, n: int) -> list[np.ndarray]:
     order = np.argsort(label, kind="stable")
     bounds = np.searchsorted(label[order], np.arange(n + 1))
@@ -562,7 +642,7 @@ def _grow(seed: int, in_g: np.ndarray, used: np.ndarray, rstart: np.ndarray, rnb
 
     def fit(rs: list[int]) -> dict[str, Any] | None:
         fcs = np.concatenate([members[r] for r in rs])
-        return _fit_primitives(_vertices_of(Fm, fcs, V), normals[fcs], areas[fcs], cent[fcs], tol, size)
+        return _fit_primitives(_vertices_of(Fm, fcs, V), normals[fcs], areas[fcs], cent[fcs], tol, size, torus=False)
 
     prim = fit(regs)
     if prim is None:
@@ -590,6 +670,23 @@ def _grow(seed: int, in_g: np.ndarray, used: np.ndarray, rstart: np.ndarray, rnb
     if final is None:
         return None
     return final, np.array(regs)
+
+
+def _leftover_tori(n: int, left: np.ndarray, rp: np.ndarray, nreg: int, region_data: Any, tol: float,
+                   size: float) -> list[tuple[dict[str, Any], np.ndarray]]:
+    """Tori in what the seeds of a split group of ``n`` regions ``left``: each smoothly connected
+    part (3 regions or more, not all) that a torus holds and no simpler primitive does. Tori are
+    not grown from seeds -- a few facets of any bent tube (a spring's coil) are one within the
+    tolerance -- but a fillet next to the faces it blends is what is left once they have grown."""
+    out = []
+    for regs in _components(nreg, rp[left[rp[:, 0]] & left[rp[:, 1]]]):
+        if not left[regs[0]] or len(regs) < 3 or len(regs) == n:
+            continue
+        _, P, nrm, wts, cc = region_data(regs)
+        prim = _fit_primitives(P, nrm, wts, cc, tol, size)
+        if prim is not None and prim["kind"] == "torus":
+            out.append((prim, regs))
+    return out
 
 
 def _refine(prim: dict[str, Any], P: np.ndarray) -> dict[str, Any]:
@@ -634,6 +731,9 @@ def _fit_kind(kind: str, prim: dict[str, Any], Q: np.ndarray) -> dict[str, Any] 
     if kind == "sphere":
         f = fits.fit_sphere(Q)
         return {"kind": kind, "centre": f.params["centre"], "radius": f.params["radius"]} if f.params else None
+    if kind == "torus":
+        return _torus_of(fits.fit_torus(Q, axis=prim["axis"], centre=prim["centre"], major_radius=prim["major_radius"],
+                                        minor_radius=prim["minor_radius"]))
     f = fits.fit_cone(Q, axis=prim["axis"], apex=prim["apex"], half_angle_deg=prim["half_angle_deg"])
     return {"kind": kind, "apex": f.params["apex"], "axis": f.params["axis"],
             "half_angle_deg": f.params["half_angle_deg"]} if f.params else None
@@ -686,7 +786,12 @@ def _feature(kind: str, prim: dict[str, Any], fcs: np.ndarray, V: np.ndarray, Fm
         ctr = prim["centre"]
         convex = float(np.einsum("ij,ij->i", cent[fcs] - ctr, nrm) @ w) > 0
         nominal = {"centre": _tuple(ctr), "radius": float(prim["radius"]), "convex": bool(convex)}
-    else:  # pragma: no cover - tori are not produced yet
-        nominal = {}
+    else:  # torus
+        prim = _refine(prim, _vertices_of(Fm, fcs, V))
+        step = 1e-3 * float(prim["minor_radius"])  # convex: the facets face out of the tube
+        convex = float((_residual(prim, cent[fcs] + step * nrm) - _residual(prim, cent[fcs])) @ w) > 0
+        nominal = {"centre": _tuple(prim["centre"]), "axis": _tuple(_canonical(prim["axis"])),
+                   "major_radius": float(prim["major_radius"]), "minor_radius": float(prim["minor_radius"]),
+                   "convex": bool(convex)}
     fcs.setflags(write=False)
     return Feature("", kind, nominal, fcs, area, int(len(fcs)))

@@ -60,6 +60,7 @@ __all__ = [
     "fit_line",
     "fit_plane",
     "fit_sphere",
+    "fit_torus",
     "between_groups_f",
     "design_effect",
     "grouped",
@@ -98,12 +99,12 @@ class Fit:
     Attributes
     ----------
     kind : str
-        ``plane``, ``line``, ``circle``, ``cylinder``, ``sphere`` or ``cone``.
+        ``plane``, ``line``, ``circle``, ``cylinder``, ``sphere``, ``cone`` or ``torus``.
     params : dict
         The primitive, reference frame, mm (see each ``fit_*``); vectors as (3,) arrays.
     residuals : (N,) float
-        Signed orthogonal residuals, mm (positive outside a circle, cylinder, sphere or
-        cone; along the normal for a plane; the distance for a line).
+        Signed orthogonal residuals, mm (positive outside a circle, cylinder, sphere, cone
+        or a torus's tube; along the normal for a plane; the distance for a line).
     names : tuple of str
         The local parameters ``cov`` is expressed in.
     cov : (p, p) float
@@ -827,6 +828,136 @@ def _fit_cone_from(P: np.ndarray, w: np.ndarray, cw: np.ndarray, p0: np.ndarray,
                    5, "half-angle", min_points, max_amplification, extra)
 
 
+# --------------------------------------------------------------------------- torus
+
+
+def fit_torus(points: np.ndarray, weights: np.ndarray | None = None, *, axis: np.ndarray | None = None,
+              centre: np.ndarray | None = None, major_radius: float | None = None, minor_radius: float | None = None,
+              min_points: int = 14, max_amplification: float = MAX_AMPLIFICATION) -> Fit:
+    """Least-squares torus (a circle of radius ``r``, the tube, swept about an axis at a
+    distance ``R`` from it: a fillet round an edge, a groove, an O-ring seat).
+
+    The residual of a point ``p`` is its orthogonal distance to the surface: with
+    ``h = (p - c).a`` and ``rho = |(p - c) - h a|``, ``sqrt((rho - R)^2 + h^2) - r``
+    (positive outside the tube).
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        mm.
+    axis, centre, major_radius, minor_radius : optional
+        A starting estimate (e.g. the CAD nominal): unit direction (3,), the centre (3,) (on
+        the axis, in the plane of the tube's centre circle), ``R`` and ``r`` mm. What is not
+        given is estimated: the axis from the points' three principal directions (each tried,
+        the best fit kept); ``R``, ``r`` and the centre's place along the axis from a circle
+        fitted to the points' profile (distance from the axis, height along it) about the
+        axis through ``centre`` -- or, without it, through the points' weighted centroid: then
+        the points should go most of the way round the axis (a partial ring's centroid is off
+        its axis). A ``centre`` given with both radii is taken as it is.
+
+    Returns
+    -------
+    Fit
+        ``params``: ``centre`` (3,), ``axis`` (3,) unit (largest component positive),
+        ``major_radius`` ``R`` and ``minor_radius`` ``r`` (mm). Local parameters
+        ``shift_u``, ``shift_v``, ``shift_axial`` (mm, of the centre), ``tilt_u``, ``tilt_v``
+        (rad, of the axis about the centre), ``major_radius``, ``minor_radius`` (mm). ``u``:
+        ``minor_radius``, ``major_radius``, ``centre`` (the largest axis), ``tilt_rad``. The key
+        parameter (:attr:`Fit.amplification`) is the minor radius: a short arc of the tube
+        (a fillet's profile seen over a few degrees) does not fix it.
+    """
+    P, w = _check(points, weights)
+    if len(P) < 7:
+        return _degenerate("torus", len(P), min_points)
+    axes = [_unit(np.asarray(axis, float))] if axis is not None else _axis_candidates(P, w)
+    best: Fit | None = None
+    for a0 in axes:
+        c0, R0, r0 = _torus_start(P, w, a0, centre, major_radius, minor_radius)
+        fit = _fit_torus_from(P, w, a0, c0, R0, r0, min_points, max_amplification)
+        if fit.params and (best is None or np.sum(w * fit.residuals ** 2) < np.sum(w * best.residuals ** 2) - 1e-12):
+            best = fit
+    if best is None:
+        return _degenerate("torus", len(P), min_points)
+    return best
+
+
+def _torus_start(P: np.ndarray, w: np.ndarray, a: np.ndarray, c0: np.ndarray | None, R0: float | None,
+                 r0: float | None) -> tuple[np.ndarray, float, float]:
+    """The centre, ``R`` and ``r`` to start from about axis ``a``: all three when given, else
+    an algebraic circle fit (:func:`_kasa`) to the profile (``rho``, ``h``) about the axis
+    through ``c0`` (or the weighted centroid) places the centre along that axis and gives the
+    radii not given."""
+    if c0 is not None and R0 is not None and r0 is not None:
+        return np.asarray(c0, float), float(R0), float(r0)
+    base = np.asarray(c0, float) if c0 is not None else (w[:, None] * P).sum(0) / w.sum()
+    d = P - base
+    h = d @ a
+    rho = np.linalg.norm(d - h[:, None] * a, axis=1)
+    ctr, rk = _kasa(np.column_stack([rho, h]), w)
+    return base + ctr[1] * a, float(ctr[0]) if R0 is None else float(R0), rk if r0 is None else float(r0)
+
+
+def _fit_torus_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, c0: np.ndarray, R0: float, r0: float,
+                    min_points: int, max_amplification: float) -> Fit:
+    state: dict[str, Any] = {"c": np.asarray(c0, float).copy(), "a": _unit(np.asarray(a0, float)), "R": float(R0),
+                             "r": float(r0)}
+    J = np.empty((len(P), 7))
+    J[:, 6] = -1.0
+
+    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = state["a"]
+        bu, bv = orthonormal_basis(a)
+        c = state["c"] + delta[0] * bu + delta[1] * bv + delta[2] * a
+        a2 = _unit(a + delta[3] * bu + delta[4] * bv)
+        R = state["R"] + delta[5]
+        d = P - c
+        h = d @ a2
+        rad = d - h[:, None] * a2
+        rho = np.sqrt(np.einsum("ij,ij->i", rad, rad))
+        e = rad / np.maximum(rho, 1e-300)[:, None]
+        s = np.maximum(np.hypot(rho - R, h), 1e-300)
+        # the surface's outward normal at the point's foot: d s / d p
+        nr, nh = (rho - R) / s, h / s
+        eu_, ev2 = e @ bu, e @ bv
+        J[:, 0] = -nr * eu_  # a shift of the centre moves the point by minus it
+        J[:, 1] = -nr * ev2
+        J[:, 2] = -nh
+        J[:, 3] = R * nh * eu_  # a tilt about the centre: d s = h R (e . b) / s
+        J[:, 4] = R * nh * ev2
+        J[:, 5] = -nr
+        return s - (state["r"] + delta[6]), J.copy()
+
+    def recentre(delta: np.ndarray) -> None:
+        a = state["a"]
+        bu, bv = orthonormal_basis(a)
+        state["c"] = state["c"] + delta[0] * bu + delta[1] * bv + delta[2] * a
+        state["a"] = _unit(a + delta[3] * bu + delta[4] * bv)
+        state["R"] = state["R"] + delta[5]
+        state["r"] = state["r"] + delta[6]
+
+    _gauss_newton(residual, recentre, w, 7)
+    state["a"] = state["a"] * (1.0 if state["a"][np.argmax(np.abs(state["a"]))] > 0 else -1.0)
+    r, J = residual(np.zeros(7))
+    c, a, R, rr = state["c"].copy(), state["a"].copy(), float(state["R"]), float(state["r"])
+    if not (R > 0 and rr > 0) or not np.isfinite(r).all():
+        return _degenerate("torus", len(P), min_points)
+    bu, bv = orthonormal_basis(a)
+
+    def geometry(delta: np.ndarray, c=c, a=a, R=R, rr=rr, bu=bu, bv=bv) -> dict[str, Any]:
+        return {"kind": "torus", "centre": c + delta[0] * bu + delta[1] * bv + delta[2] * a,
+                "axis": _unit(a + delta[3] * bu + delta[4] * bv), "major_radius": R + delta[5],
+                "minor_radius": rr + delta[6]}
+
+    def extra(cov: np.ndarray) -> dict[str, float]:
+        return {"minor_radius": float(np.sqrt(cov[6, 6])), "major_radius": float(np.sqrt(cov[5, 5])),
+                "centre": float(np.sqrt(np.linalg.eigvalsh(cov[:3, :3])[-1])),
+                "tilt_rad": float(np.sqrt(max(cov[3, 3], cov[4, 4])))}
+
+    return _finish("torus", {"centre": c, "axis": a, "major_radius": R, "minor_radius": rr}, r, J, w,
+                   ("shift_u", "shift_v", "shift_axial", "tilt_u", "tilt_v", "major_radius", "minor_radius"), geometry,
+                   6, "minor radius", min_points, max_amplification, extra)
+
+
 # --------------------------------------------------------------------------- derived quantities
 
 
@@ -871,7 +1002,8 @@ def propagate(f: Callable[..., float], fits: Sequence[Fit], *, rel_step: float =
 
 
 def direction_of(geo: dict[str, Any]) -> np.ndarray:
-    """The plane's normal or the axis direction (3,) of a primitive (a ``perturbed`` dict)."""
+    """The plane's normal or the axis direction (3,) of a primitive (a ``perturbed`` dict; a
+    torus's: its axis)."""
     for key in ("normal", "direction", "axis"):
         if key in geo:
             return np.asarray(geo[key], float)
@@ -1015,7 +1147,8 @@ def distance_between(a: Fit, b: Fit) -> tuple[float, float]:
     Plane/plane (parallel: a thickness or a step): along their mean normal, at the midpoint
     of the two planes' points; plane/axis or plane/centre: from the axis point or centre to
     the plane; axis/axis (parallel): between the axes at the midpoint of their points;
-    axis/centre: from the centre to the axis; centre/centre: between the centres.
+    axis/centre: from the centre to the axis; centre/centre: between the centres. A torus
+    counts by its centre (as a sphere: two grooves along a shaft are their centres apart).
     """
     return propagate(geometric_distance, [a, b])
 
