@@ -606,12 +606,18 @@ def fit_cylinder(points: np.ndarray, weights: np.ndarray | None = None, *, axis:
     if len(P) < 5:
         return _degenerate("cylinder", len(P), min_points)
     starts = [_unit(np.asarray(axis, float))] if axis is not None else _axis_candidates(P, w)
+    best = _least_cost([_fit_cylinder_from(P, w, a0, point, radius, min_points, max_amplification) for a0 in starts], w)
+    assert best is not None
+    return best
+
+
+def _least_cost(candidates: Sequence[Fit], w: np.ndarray) -> Fit | None:
+    """The candidate fit (one per start) with the smallest weighted sum of squared residuals;
+    a later one wins only by more than 1e-12 (ties keep the first start). None when empty."""
     best: Fit | None = None
-    for a0 in starts:
-        fit = _fit_cylinder_from(P, w, a0, point, radius, min_points, max_amplification)
+    for fit in candidates:
         if best is None or float(np.sum(w * fit.residuals ** 2)) < float(np.sum(w * best.residuals ** 2)) - 1e-12:
             best = fit
-    assert best is not None
     return best
 
 
@@ -870,12 +876,9 @@ def fit_torus(points: np.ndarray, weights: np.ndarray | None = None, *, axis: np
     if len(P) < 7:
         return _degenerate("torus", len(P), min_points)
     axes = [_unit(np.asarray(axis, float))] if axis is not None else _axis_candidates(P, w)
-    best: Fit | None = None
-    for a0 in axes:
-        c0, R0, r0 = _torus_start(P, w, a0, centre, major_radius, minor_radius)
-        fit = _fit_torus_from(P, w, a0, c0, R0, r0, min_points, max_amplification)
-        if fit.params and (best is None or np.sum(w * fit.residuals ** 2) < np.sum(w * best.residuals ** 2) - 1e-12):
-            best = fit
+    tried = [_fit_torus_from(P, w, a0, *_torus_start(P, w, a0, centre, major_radius, minor_radius), min_points,
+                             max_amplification) for a0 in axes]
+    best = _least_cost([f for f in tried if f.params], w)
     if best is None:
         return _degenerate("torus", len(P), min_points)
     return best
