@@ -26,7 +26,7 @@ Minimum-zone (Chebyshev) form -- :func:`flatness`, :func:`roundness`,
 :func:`cylindricity` -- minimises the width of the zone that holds every point, as the ISO
 definitions require; the zone's parameters are linearised about the least-squares fit (the
 tilts involved are micro-radians to milli-radians, the linearisation error is below 1e-9 mm)
-and the linear programme is solved by :func:`scipy.optimize.linprog`, re-linearised until it
+and the linear programme is solved by HiGHS (:mod:`inspector.kernels.lp`), re-linearised until it
 settles. :func:`circle_mcc` and :func:`circle_mic` give the minimum circumscribed and
 maximum inscribed circles the same way.
 
@@ -42,6 +42,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+
+from inspector.kernels import lp
 
 __all__ = [
     "Fit",
@@ -372,35 +374,51 @@ def fit_plane(points: np.ndarray, weights: np.ndarray | None = None, *, min_poin
     P, w = _check(points, weights)
     if len(P) < 3:
         return _degenerate("plane", len(P), min_points)
-    c = (w[:, None] * P).sum(0) / w.sum()
+    W = float(w.sum())
+    c = (w @ P) / W
     d = P - c
     M = (d * w[:, None]).T @ d
-    ev, vec = np.linalg.eigh(M)
+    lam, vec = np.linalg.eigh(M)
     nrm = vec[:, 0]
     nrm = nrm * (1.0 if nrm[np.argmax(np.abs(nrm))] > 0 else -1.0)
-    eu, ev_ = vec[:, 2], np.cross(nrm, vec[:, 2])
+    eu = vec[:, 2]
+    ev_ = np.array([nrm[1] * eu[2] - nrm[2] * eu[1], nrm[2] * eu[0] - nrm[0] * eu[2], nrm[0] * eu[1] - nrm[1] * eu[0]])
     r = d @ nrm
-    J = np.column_stack([-np.ones(len(P)), d @ eu, d @ ev_])
+    n = len(P)
+    dof = n - 3
+    s2 = float(w @ (r * r)) / dof if dof > 0 else float("nan")
+    s = float(np.sqrt(s2)) if dof > 0 else float("nan")
+    # The Jacobian of (offset, tilt_u, tilt_v) is (-1, d.eu, d.ev): about the weighted
+    # centroid and in the scatter matrix's eigenbasis its normal matrix is diagonal,
+    # diag(W, lambda_max, lambda_mid), so the covariance is written out instead of formed
+    # from J (the same numbers: the scaled condition number is 1 unless a lambda is 0).
+    singular = not (lam[1] > 0 and lam[2] > 0) or dof <= 0
+    cov = np.full((3, 3), np.inf) if singular else np.diag([s2 / W, s2 / float(lam[2]), s2 / float(lam[1])])
 
     def geometry(delta: np.ndarray, c=c, nrm=nrm, eu=eu, ev_=ev_) -> dict[str, Any]:
         n2 = _unit(nrm + delta[1] * eu + delta[2] * ev_)
         return {"kind": "plane", "point": c + delta[0] * nrm, "normal": n2}
 
-    def extra(cov: np.ndarray) -> dict[str, float]:
-        return {"offset": float(np.sqrt(cov[0, 0])), "tilt_rad": float(np.sqrt(np.linalg.eigvalsh(cov[1:, 1:])[-1]))}
+    params = {"point": c, "normal": nrm, "u": eu, "v": ev_}
+    names = ("offset", "tilt_u", "tilt_v")
+    if n < min_points:
+        return Fit("plane", params, r, names, cov, s, n, {} if singular else _plane_u(cov), float("nan"),
+                   f"too few points ({n} < {min_points})", geometry)
+    if singular:
+        return Fit("plane", params, r, names, cov, s, n, {}, float("nan"),
+                   "the points do not constrain the plane (singular, condition inf)", geometry)
+    u = _plane_u(cov)
+    extent = float(np.ptp(d @ eu))
+    amp = u["tilt_rad"] * extent / (max(s, 1e-9) / np.sqrt(n))
+    problem = None
+    if amp > max_amplification:
+        problem = (f"the points do not constrain the plane's tilt (a strip or a line: its uncertainty is {amp:.0f}x "
+                   f"the points' scatter over sqrt(N) and their extent; at most {max_amplification:g})")
+    return Fit("plane", params, r, names, cov, s, n, u, amp, problem, geometry)
 
-    fit = _finish("plane", {"point": c, "normal": nrm, "u": eu, "v": ev_}, r, J, w, ("offset", "tilt_u", "tilt_v"),
-                  geometry, None, "tilt", min_points, max_amplification, extra)
-    if fit.problem is None and np.isfinite(fit.cov).all():
-        extent = float(np.ptp(d @ eu)) if len(d) else 0.0
-        tilt = float(np.sqrt(np.linalg.eigvalsh(fit.cov[1:, 1:])[-1]))
-        amp = tilt * extent / (max(fit.s, 1e-9) / np.sqrt(len(P)))
-        problem = None
-        if amp > max_amplification:
-            problem = (f"the points do not constrain the plane's tilt (a strip or a line: its uncertainty is {amp:.0f}x "
-                       f"the points' scatter over sqrt(N) and their extent; at most {max_amplification:g})")
-        fit = Fit(fit.kind, fit.params, fit.residuals, fit.names, fit.cov, fit.s, fit.n, fit.u, amp, problem, geometry)
-    return fit
+
+def _plane_u(cov: np.ndarray) -> dict[str, float]:
+    return {"offset": float(np.sqrt(cov[0, 0])), "tilt_rad": float(np.sqrt(max(cov[1, 1], cov[2, 2])))}
 
 
 def _degenerate(kind: str, n: int, min_points: int) -> Fit:
@@ -1191,8 +1209,6 @@ def _lp_zone(base: np.ndarray, G: np.ndarray, mode: str = "zone") -> tuple[float
 
 
 def _lp_solve(base: np.ndarray, G: np.ndarray, mode: str) -> tuple[float, np.ndarray]:
-    from scipy.optimize import linprog
-
     n, k = G.shape
     # variables: x (k), U, L
     if mode == "zone":
@@ -1208,11 +1224,10 @@ def _lp_solve(base: np.ndarray, G: np.ndarray, mode: str) -> tuple[float, np.nda
         A, b = A[:n], b[:n]
     elif mode == "mic":
         A, b = A[n:], b[n:]
-    bounds = [(None, None)] * (k + 2)
-    res = linprog(cost, A_ub=A, b_ub=b, bounds=bounds, method="highs")
-    if not res.success:
-        raise FitError(f"minimum-zone programme failed: {res.message}")
-    x = res.x[:k]
+    try:
+        x = lp.minimize_free(cost, A, b)[:k]
+    except lp.LPError as e:
+        raise FitError(f"minimum-zone programme failed: {e}") from None
     y = base + G @ x
     return {"zone": float(np.ptp(y)), "mcc": float(y.max()), "mic": float(y.min())}[mode], x
 
@@ -1246,8 +1261,6 @@ def _zone_blocks(bases: Sequence[np.ndarray], Gs: Sequence[np.ndarray], k0: int 
     list of (k,) float
         Each block's ``x_s``.
     """
-    from scipy.optimize import linprog
-
     S = len(bases)
     k = Gs[0].shape[1]
     actives = []
@@ -1280,12 +1293,13 @@ def _zone_blocks(bases: Sequence[np.ndarray], Gs: Sequence[np.ndarray], k0: int 
             zr[0, S * k + s], zr[0, S * k + S + s], zr[0, -1] = 1.0, -1.0, -1.0
             rows += [up, lo, zr]
             rhs += [-b, b, np.zeros(1)]
-        res = linprog(cost, A_ub=np.vstack(rows), b_ub=np.concatenate(rhs), bounds=[(None, None)] * nv, method="highs")
-        if not res.success:
-            raise FitError(f"minimum-zone programme failed: {res.message}")
+        try:
+            sol = lp.minimize_free(cost, np.vstack(rows), np.concatenate(rhs))
+        except lp.LPError as e:
+            raise FitError(f"minimum-zone programme failed: {e}") from None
         grown = False
         for s in range(S):
-            xs[s] = res.x[s * k:(s + 1) * k]
+            xs[s] = sol[s * k:(s + 1) * k]
             y = bases[s] + Gs[s] @ xs[s]
             ya = y[actives[s]]
             hi, lo_ = ya.max(), ya.min()
