@@ -52,6 +52,8 @@ __all__ = [
     "angle_between",
     "circle_mcc",
     "circle_mic",
+    "cylinder_lm_numpy",
+    "cylinder_residual_numpy",
     "cylindricity",
     "direction_of",
     "distance_between",
@@ -249,7 +251,9 @@ def orthonormal_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)
+    # math.sqrt of the dot product: np.linalg.norm's generality costs 3x for one 3-vector,
+    # and this runs in every perturbed geometry of every uncertainty propagation.
+    return v / math.sqrt(float(v @ v))
 
 
 def _check(points: Any, weights: Any, dim: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -286,12 +290,14 @@ def _covariance(J: np.ndarray, r: np.ndarray, w: np.ndarray, p: int) -> tuple[np
     return 0.5 * (cov + cov.T), float(np.sqrt(s2)), cond
 
 
-def _gauss_newton(residual: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+def _gauss_newton(residual: Callable[..., tuple[np.ndarray, np.ndarray | None]],
                   recentre: Callable[[np.ndarray], None], w: np.ndarray, p: int) -> None:
-    """Levenberg-Marquardt on local parameters: ``residual(delta) -> (r, J)`` at the state moved
-    by ``delta``; ``recentre(delta)`` makes that the new state (delta 0)."""
+    """Levenberg-Marquardt on local parameters: ``residual(delta, jac) -> (r, J)`` at the state
+    moved by ``delta`` (``J`` None when ``jac`` is false: a trial step needs only its cost);
+    ``recentre(delta)`` makes that the new state (delta 0)."""
     lam = 1e-6
-    r, J = residual(np.zeros(p))
+    r, J = residual(np.zeros(p), True)
+    assert J is not None
     cost = float(np.sum(w * r * r))
     for _ in range(_MAX_ITER):
         A = J.T @ (J * w[:, None])
@@ -304,11 +310,12 @@ def _gauss_newton(residual: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
-            r2, J2 = residual(step)
+            r2 = residual(step, False)[0]
             cost2 = float(np.sum(w * r2 * r2))
             if np.isfinite(cost2) and cost2 <= cost:
                 recentre(step)
-                r, J = residual(np.zeros(p))
+                r, J = residual(np.zeros(p), True)
+                assert J is not None
                 done = cost - cost2 <= _RTOL * max(cost, 1e-300) or cost2 == 0.0
                 cost = float(np.sum(w * r * r))
                 lam = max(lam / 10.0, 1e-12)
@@ -319,10 +326,11 @@ def _gauss_newton(residual: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]
             return
 
 
-def _finish(kind: str, params: dict[str, Any], r: np.ndarray, J: np.ndarray, w: np.ndarray,
+def _finish(kind: str, params: dict[str, Any], r: np.ndarray, J: np.ndarray | None, w: np.ndarray,
             names: tuple[str, ...], geometry: Callable[[np.ndarray], dict[str, Any]],
             key: int | None, key_name: str, min_points: int, max_amplification: float,
             extra_u: Callable[[np.ndarray], dict[str, float]]) -> Fit:
+    assert J is not None  # the residual at the solution, with its Jacobian
     p = len(names)
     n = len(r)
     cov, s, cond = _covariance(J, r, w, p)
@@ -516,9 +524,11 @@ def fit_circle(points: np.ndarray, weights: np.ndarray | None = None, *, normal:
     ctr, R = _kasa(q, w)
     state: dict[str, Any] = {"c": ctr.copy(), "R": R}
 
-    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def residual(delta: np.ndarray, jac: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         dq = q - (state["c"] + delta[:2])
         rho = np.hypot(dq[:, 0], dq[:, 1])
+        if not jac:
+            return rho - (state["R"] + delta[2]), None
         e = dq / np.maximum(rho, 1e-300)[:, None]
         return rho - (state["R"] + delta[2]), np.column_stack([-e, -np.ones(len(q))])
 
@@ -564,9 +574,11 @@ def fit_sphere(points: np.ndarray, weights: np.ndarray | None = None, *, min_poi
     sol, *_ = np.linalg.lstsq(A * sw[:, None], (P * P).sum(1) * sw, rcond=None)
     state: dict[str, Any] = {"c": sol[:3].copy(), "R": float(np.sqrt(max(sol[3] + sol[:3] @ sol[:3], 1e-300)))}
 
-    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def residual(delta: np.ndarray, jac: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         d = P - (state["c"] + delta[:3])
         rho = np.linalg.norm(d, axis=1)
+        if not jac:
+            return rho - (state["R"] + delta[3]), None
         e = d / np.maximum(rho, 1e-300)[:, None]
         return rho - (state["R"] + delta[3]), np.column_stack([-e, -np.ones(len(P))])
 
@@ -639,6 +651,53 @@ def _least_cost(candidates: Sequence[Fit], w: np.ndarray) -> Fit | None:
     return best
 
 
+def cylinder_residual_numpy(P: np.ndarray, p: np.ndarray, a: np.ndarray, bu: np.ndarray, bv: np.ndarray,
+                            R: float) -> tuple[np.ndarray, np.ndarray]:
+    """Orthogonal residuals (N,) of points ``P`` (N, 3) to the cylinder of axis point ``p``,
+    unit direction ``a`` and radius ``R`` (mm), and their Jacobian (N, 5) in the local
+    parameters about the frame ``bu``, ``bv`` (shift_u, shift_v, tilt_u, tilt_v, radius).
+
+    The reference the compiled :func:`inspector.kernels.fits_jit.cylinder_residual` (what
+    the fit calls) is held to by the tests.
+    """
+    d = P - p
+    h = d @ a
+    rad = d - h[:, None] * a
+    rho = np.sqrt(np.einsum("ij,ij->i", rad, rad))
+    e = rad / np.maximum(rho, 1e-300)[:, None]
+    eu, ev = e @ bu, e @ bv
+    return rho - R, np.column_stack([-eu, -ev, -h * eu, -h * ev, -np.ones(len(P))])
+
+
+def cylinder_lm_numpy(P: np.ndarray, w: np.ndarray, cw: np.ndarray, state: np.ndarray) -> None:
+    """The cylinder's damped Gauss-Newton loop in numpy, in place on ``state`` (7,) (axis
+    point, unit direction, radius; the point kept at the points' weighted centroid ``cw``
+    along the axis): the reference the compiled :func:`inspector.kernels.fits_jit.cylinder_lm`
+    (what the fit calls) is held to by the tests."""
+    st: dict[str, Any] = {"p": state[0:3].copy(), "a": state[3:6].copy(), "R": float(state[6])}
+
+    def centre() -> None:
+        st["p"] = st["p"] + ((cw - st["p"]) @ st["a"]) * st["a"]
+        st["basis"] = orthonormal_basis(st["a"])
+
+    def residual(delta: np.ndarray, jac: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        bu, bv = st["basis"]
+        r, J = cylinder_residual_numpy(P, st["p"] + delta[0] * bu + delta[1] * bv,
+                                       _unit(st["a"] + delta[2] * bu + delta[3] * bv), bu, bv, st["R"] + delta[4])
+        return r, J
+
+    def recentre(delta: np.ndarray) -> None:
+        bu, bv = st["basis"]
+        st["p"] = st["p"] + delta[0] * bu + delta[1] * bv
+        st["a"] = _unit(st["a"] + delta[2] * bu + delta[3] * bv)
+        st["R"] = st["R"] + delta[4]
+        centre()
+
+    centre()
+    _gauss_newton(residual, recentre, w, 5)
+    state[:] = np.r_[st["p"], st["a"], st["R"]]
+
+
 def _fit_cylinder_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, p0: np.ndarray | None, R0: float | None,
                        min_points: int, max_amplification: float) -> Fit:
     cw = (w[:, None] * P).sum(0) / w.sum()
@@ -652,51 +711,17 @@ def _fit_cylinder_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, p0: np.ndar
             p_init = np.asarray(p0, float)
     else:
         p_init, R_init = np.asarray(p0, float), float(R0)
-    state: dict[str, Any] = {"p": p_init.copy(), "a": a0.copy(), "R": float(R_init)}
+    from inspector.kernels import fits_jit  # lazy: Numba, only once a cylinder is fitted
 
-    def centre_state() -> None:  # the axis point at the points' weighted mean along the axis
-        a = state["a"]
-        state["p"] = state["p"] + ((cw - state["p"]) @ a) * a
-
-    centre_state()
-
-    J = np.empty((len(P), 5))
-    J[:, 4] = -1.0
-
-    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # The Jacobian's columns are written into one preallocated array and the radial
-        # distance's norm taken by hand: this runs a dozen times per fit, on every point.
-        a = state["a"]
-        bu, bv = orthonormal_basis(a)
-        p = state["p"] + delta[0] * bu + delta[1] * bv
-        a2 = _unit(a + delta[2] * bu + delta[3] * bv)
-        d = P - p
-        h = d @ a2
-        rad = d - h[:, None] * a2
-        rho = np.sqrt(np.einsum("ij,ij->i", rad, rad))
-        inv = 1.0 / np.maximum(rho, 1e-300)
-        eu_, ev2 = (rad @ bu) * inv, (rad @ bv) * inv
-        J[:, 0] = -eu_
-        J[:, 1] = -ev2
-        J[:, 2] = -h * eu_
-        J[:, 3] = -h * ev2
-        return rho - (state["R"] + delta[4]), J.copy()
-
-    def recentre(delta: np.ndarray) -> None:
-        a = state["a"]
-        bu, bv = orthonormal_basis(a)
-        state["p"] = state["p"] + delta[0] * bu + delta[1] * bv
-        state["a"] = _unit(a + delta[2] * bu + delta[3] * bv)
-        state["R"] = state["R"] + delta[4]
-        centre_state()
-
-    _gauss_newton(residual, recentre, w, 5)
-    r, J = residual(np.zeros(5))
-    a = state["a"] * (1.0 if state["a"][np.argmax(np.abs(state["a"]))] > 0 else -1.0)
-    state["a"] = a
-    r, J = residual(np.zeros(5))
-    p, R = state["p"].copy(), float(state["R"])
+    # The whole damped Gauss-Newton loop is compiled: on the few hundred points of a bore,
+    # the numpy loop's call overhead was ~1 ms a fit (cylinder_lm_numpy is its reference).
+    state = np.r_[p_init, a0, float(R_init)]
+    fits_jit.cylinder_lm(P, w, cw, state, _RTOL, _MAX_ITER)
+    a = state[3:6] * (1.0 if state[3 + int(np.argmax(np.abs(state[3:6])))] > 0 else -1.0)
+    p, R = state[0:3].copy(), float(state[6])
     bu, bv = orthonormal_basis(a)
+    r, Jr = np.empty(len(P)), np.empty((len(P), 5))
+    fits_jit.cylinder_residual(P, p, a, bu, bv, R, r, Jr, True)
 
     def geometry(delta: np.ndarray, p=p, a=a, R=R, bu=bu, bv=bv) -> dict[str, Any]:
         return {"kind": "cylinder", "point": p + delta[0] * bu + delta[1] * bv,
@@ -707,7 +732,7 @@ def _fit_cylinder_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, p0: np.ndar
                 "position": float(np.sqrt(max(cov[0, 0], cov[1, 1]))), "tilt_rad": float(np.sqrt(max(cov[2, 2], cov[3, 3])))}
 
     h = (P - p) @ a
-    return _finish("cylinder", {"point": p, "direction": a, "radius": R, "length": float(np.ptp(h))}, r, J, w,
+    return _finish("cylinder", {"point": p, "direction": a, "radius": R, "length": float(np.ptp(h))}, r, Jr, w,
                    ("shift_u", "shift_v", "tilt_u", "tilt_v", "radius"), geometry, 4, "radius", min_points,
                    max_amplification, extra)
 
@@ -796,7 +821,7 @@ def _fit_cone_from(P: np.ndarray, w: np.ndarray, cw: np.ndarray, p0: np.ndarray,
 
     centre_state()
 
-    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def residual(delta: np.ndarray, jac: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         a = state["a"]
         bu, bv = orthonormal_basis(a)
         p = state["p"] + delta[0] * bu + delta[1] * bv
@@ -810,6 +835,8 @@ def _fit_cone_from(P: np.ndarray, w: np.ndarray, cw: np.ndarray, p0: np.ndarray,
         e = rad / np.maximum(rho, 1e-300)[:, None]
         ca, ta = np.cos(al), np.tan(al)
         g = rho - r0_ - h * ta
+        if not jac:
+            return g * ca, None
         eu_, ev2 = e @ bu, e @ bv
         du, dv = d @ bu, d @ bv
         J = np.column_stack([-eu_ * ca, -ev2 * ca, (-h * eu_ - ta * du) * ca, (-h * ev2 - ta * dv) * ca,
@@ -925,7 +952,7 @@ def _fit_torus_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, c0: np.ndarray
     J = np.empty((len(P), 7))
     J[:, 6] = -1.0
 
-    def residual(delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def residual(delta: np.ndarray, jac: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         a = state["a"]
         bu, bv = orthonormal_basis(a)
         c = state["c"] + delta[0] * bu + delta[1] * bv + delta[2] * a
@@ -937,6 +964,8 @@ def _fit_torus_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, c0: np.ndarray
         rho = np.sqrt(np.einsum("ij,ij->i", rad, rad))
         e = rad / np.maximum(rho, 1e-300)[:, None]
         s = np.maximum(np.hypot(rho - R, h), 1e-300)
+        if not jac:
+            return s - (state["r"] + delta[6]), None
         # the surface's outward normal at the point's foot: d s / d p
         nr, nh = (rho - R) / s, h / s
         eu_, ev2 = e @ bu, e @ bv
@@ -958,7 +987,7 @@ def _fit_torus_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, c0: np.ndarray
 
     _gauss_newton(residual, recentre, w, 7)
     state["a"] = state["a"] * (1.0 if state["a"][np.argmax(np.abs(state["a"]))] > 0 else -1.0)
-    r, J = residual(np.zeros(7))
+    r, Jr = residual(np.zeros(7))
     c, a, R, rr = state["c"].copy(), state["a"].copy(), float(state["R"]), float(state["r"])
     if not (R > 0 and rr > 0) or not np.isfinite(r).all():
         return _degenerate("torus", len(P), min_points)
@@ -974,7 +1003,7 @@ def _fit_torus_from(P: np.ndarray, w: np.ndarray, a0: np.ndarray, c0: np.ndarray
                 "centre": float(np.sqrt(np.linalg.eigvalsh(cov[:3, :3])[-1])),
                 "tilt_rad": float(np.sqrt(max(cov[3, 3], cov[4, 4])))}
 
-    return _finish("torus", {"centre": c, "axis": a, "major_radius": R, "minor_radius": rr}, r, J, w,
+    return _finish("torus", {"centre": c, "axis": a, "major_radius": R, "minor_radius": rr}, r, Jr, w,
                    ("shift_u", "shift_v", "shift_axial", "tilt_u", "tilt_v", "major_radius", "minor_radius"), geometry,
                    6, "minor radius", min_points, max_amplification, extra)
 
@@ -1099,19 +1128,18 @@ def plane_jackknife(points: np.ndarray, weights: np.ndarray | None, groups: np.n
     for i in range(3):
         for j in range(i, 3):
             M[:, i, j] = M[:, j, i] = np.bincount(idx, weights=w * d[:, i] * d[:, j], minlength=G)
-    Wt, St, Mt = W.sum(), S.sum(0), M.sum(0)
-    nrm0 = np.asarray(normal, float)
+    # Every leave-one-out scatter at once, and one batched eigen-decomposition of the stack.
+    Wk = W.sum() - W
+    ok = (len(P) - count >= min_points) & (Wk > 0)
+    Wd = np.where(ok, Wk, 1.0)
+    mean = (S.sum(0) - S) / Wd[:, None]
+    C = (M.sum(0) - M) / Wd[:, None, None] - mean[:, :, None] * mean[:, None, :]
+    C[~ok] = np.eye(3)
+    nrm = np.linalg.eigh(C)[1][:, :, 0]
+    nrm *= np.where(nrm @ np.asarray(normal, float) >= 0, 1.0, -1.0)[:, None]
     out: dict[Any, dict[str, Any] | None] = {}
-    for k, label in enumerate(labels):
-        Wk = Wt - W[k]
-        if len(P) - count[k] < min_points or Wk <= 0:
-            out[label.item() if hasattr(label, "item") else label] = None
-            continue
-        mean = (St - S[k]) / Wk
-        C = (Mt - M[k]) / Wk - np.outer(mean, mean)
-        n = np.linalg.eigh(C)[1][:, 0]
-        n = n if float(n @ nrm0) >= 0 else -n
-        out[label.item() if hasattr(label, "item") else label] = {"kind": "plane", "point": c0 + mean, "normal": n}
+    for k, label in enumerate(labels.tolist()):
+        out[label] = {"kind": "plane", "point": c0 + mean[k], "normal": nrm[k]} if ok[k] else None
     return out
 
 

@@ -322,3 +322,40 @@ def test_plane_jackknife_is_fit_plane_without_each_group():
         assert out[k]["normal"] @ nrm > 0
     few = F.plane_jackknife(P[:15], None, np.r_[np.zeros(10, int), np.ones(5, int)], nrm)
     assert few[0] is None and few[1] is not None  # without group 0, 5 points: too few
+
+
+def test_compiled_cylinder_residual_is_the_numpy_one():
+    """The fit's compiled residual and Jacobian (fits_jit) equal the numpy reference."""
+    fits_jit = pytest.importorskip("inspector.kernels.fits_jit")
+    rng = np.random.default_rng(21)
+    a, bu, bv = _basis([0.3, -0.1, 1.0])
+    p = np.array([4.0, -2.0, 7.0])
+    P = cylinder_points(rng, 300, 9.0, a, p, 30.0, sigma=0.01)
+    r_ref, J_ref = F.cylinder_residual_numpy(P, p, a, bu, bv, 9.0)
+    r, J = np.empty(len(P)), np.empty((len(P), 5))
+    fits_jit.cylinder_residual(P, p, a, bu, bv, 9.0, r, J, True)
+    np.testing.assert_allclose(r, r_ref, atol=1e-12)
+    np.testing.assert_allclose(J, J_ref, atol=1e-12)
+    r2 = np.zeros(len(P))
+    J2 = np.full((len(P), 5), 7.0)
+    fits_jit.cylinder_residual(P, p, a, bu, bv, 9.0, r2, J2, False)  # the residual only: J untouched
+    np.testing.assert_allclose(r2, r_ref, atol=1e-12)
+    assert (J2 == 7.0).all()
+
+
+def test_compiled_cylinder_fit_loop_is_the_numpy_one():
+    """fits_jit.cylinder_lm (what fit_cylinder runs) ends where the numpy loop on the
+    reference residual ends, from a start 0.5 mm and 3 degrees off, with uneven weights."""
+    fits_jit = pytest.importorskip("inspector.kernels.fits_jit")
+    rng = np.random.default_rng(22)
+    axis = np.array([0.05, 0.02, 1.0])
+    P = cylinder_points(rng, 250, 4.0, axis, [10.0, 20.0, 30.0], 6.0, arc_deg=200.0, sigma=0.004)
+    w = rng.uniform(0.3, 1.0, len(P))
+    cw = (w[:, None] * P).sum(0) / w.sum()
+    a0 = np.array([0.0, 0.05, 1.0]) / np.linalg.norm([0.0, 0.05, 1.0])
+    start = np.r_[[10.5, 19.8, 30.0], a0, 4.4]
+    compiled, reference = start.copy(), start.copy()
+    fits_jit.cylinder_lm(P, w, cw, compiled, F._RTOL, F._MAX_ITER)
+    F.cylinder_lm_numpy(P, w, cw, reference)
+    np.testing.assert_allclose(compiled, reference, atol=1e-9)
+    assert abs(compiled[6] - 4.0) < 0.01 and compiled[3:6] @ (axis / np.linalg.norm(axis)) > 0.9999

@@ -71,6 +71,17 @@ def test_band_fallback_and_closest():
     assert tid[0] == -1 and np.isnan(q).all()
 
 
+
+def test_closest_on_one_thread_is_the_parallel_query():
+    mesh = load_reference("builtin:bracket", recentre=False)
+    md = MeshDistance(np.asarray(mesh.vertices, float), np.asarray(mesh.faces))
+    P = _near_surface(mesh, 2000, 0.8, seed=4)
+    q, tid = md.closest(P)
+    q1, tid1 = md.closest(P, parallel=False)
+    assert (tid >= 0).mean() > 0.9
+    np.testing.assert_array_equal(tid1, tid)
+    np.testing.assert_array_equal(q1, q)  # NaN where not in the band, in both
+
 def test_rejects_bad_meshes():
     with pytest.raises(ValueError):
         MeshDistance(np.zeros((3, 2)), np.array([[0, 1, 2]]))
