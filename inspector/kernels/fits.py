@@ -271,6 +271,8 @@ def _check(points: Any, weights: Any, dim: int = 3) -> tuple[np.ndarray, np.ndar
         if not np.isfinite(w).all() or (w < 0).any():
             raise FitError("weights must be finite and >= 0")
     keep = w > 0
+    if keep.all():  # no copy: the robust refits pass the same points again and again
+        return P, w
     return P[keep], w[keep]
 
 
@@ -1156,14 +1158,14 @@ def geometric_distance(ga: dict[str, Any], gb: dict[str, Any]) -> float:
     if ka == "plane" and kb == "plane":
         # Parallel planes: along the mean normal, between the planes' heights at the midpoint
         # of their points' centroids (thickness or step height).
-        na, nb = direction_of(ga), direction_of(gb)
-        if na @ nb < 0:
+        # (Written for few array operations: the uncertainty and the camera jackknife call
+        # this about thirty times per thickness.)
+        na, nb = ga["normal"], gb["normal"]
+        if float(na @ nb) < 0:
             nb = -nb
         nbar = _unit(na + nb)
-        m = 0.5 * (ga["point"] + gb["point"])
-        sa = ((ga["point"] - m) @ na) / (nbar @ na)
-        sb = ((gb["point"] - m) @ nb) / (nbar @ nb)
-        return abs(sb - sa)
+        half = 0.5 * (gb["point"] - ga["point"])  # from either point to their midpoint, +-
+        return abs(float(half @ nb) / float(nbar @ nb) + float(half @ na) / float(nbar @ na))
     if kb == "plane" and ka != "plane":
         ga, gb, ka, kb = gb, ga, kb, ka
     if ka == "plane":
@@ -1268,7 +1270,7 @@ def _lp_solve(base: np.ndarray, G: np.ndarray, mode: str) -> tuple[float, np.nda
 _ZONE_SETTLED_MM = 1e-6
 
 
-def _zone_blocks(bases: Sequence[np.ndarray], Gs: Sequence[np.ndarray], k0: int = 128) -> list[np.ndarray]:
+def _zone_blocks(bases: Sequence[np.ndarray], Gs: Sequence[np.ndarray], k0: int = 16) -> list[np.ndarray]:
     """Minimum zones of several independent linearised problems in one linear programme.
 
     Block ``s`` asks for ``x_s`` minimising ``ptp(bases[s] + Gs[s] @ x_s)``; the programme
@@ -1346,24 +1348,18 @@ def flatness(points: np.ndarray, fit: Fit | None = None) -> float:
     """Minimum-zone flatness, mm: the smallest distance between two parallel planes holding
     every point (N, 3) mm. ``fit``: their least-squares plane (computed when absent).
 
-    Only the vertices of the points' convex hull can touch a pair of parallel planes that hold
-    them all, so the zone is computed on those (a few hundred of thousands of points)."""
+    Only the points at the zone's two sides constrain it: the programme starts from the
+    highest and lowest few and grows by those left outside (:func:`_zone_blocks`), which
+    costs less than reducing the points to their convex hull first (1.0 ms against 3.0 ms
+    for 3200 points of a face, the same zone)."""
     P, _ = _check(points, None)
     if len(P) < 3:
         raise FitError("flatness needs at least 3 points")
     fit = fit or fit_plane(P)
     c, nrm, eu, ev_ = fit.params["point"], fit.params["normal"], fit.params["u"], fit.params["v"]
-    H = P
-    if len(P) > 64:
-        from scipy.spatial import ConvexHull, QhullError
-
-        try:
-            H = P[ConvexHull(P).vertices]
-        except QhullError:  # flat to machine precision: every point is on the hull
-            H = P
     extent = float(np.ptp((P - c) @ eu)) + float(np.ptp((P - c) @ ev_))
     for _ in range(6):
-        d = H - c
+        d = P - c
         base = d @ nrm
         G = np.column_stack([d @ eu, d @ ev_])
         (x,) = _zone_blocks([base], [G])
