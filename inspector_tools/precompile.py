@@ -43,6 +43,7 @@ import inspector
 from inspector.capture_folder import read_capture, save_capture
 from inspector.kernels import fits
 from inspector.params import build_params
+from inspector.parts import load_reference
 from inspector.registry import Acquisition
 from inspector.resources import recipe_path
 from inspector.runner import run_batch
@@ -122,8 +123,8 @@ class _Progress:
 
 def precompile(work: Path, say: Callable[[str], None] = print, parallel: int = 2) -> dict[str, Any]:
     """Inspect two small simulated captures with :data:`RECIPES`, compiling every kernel
-    they use into Numba's on-disk cache (loading it where it is already there), then fit one
-    cylinder (the characteristics' compiled fit, which those recipes do not reach).
+    they use into Numba's on-disk cache (loading it where it is already there), then the
+    characteristics' kernels, which those recipes do not reach.
 
     Parameters
     ----------
@@ -158,18 +159,23 @@ def precompile(work: Path, say: Callable[[str], None] = print, parallel: int = 2
             out = work / "results" / Path(rname).stem
             verdicts[rname] = {o.result.capture: o.result.verdict
                                for o in run_batch(session.recipe, acqs, session.pm, reference=session.reference, outdir=out)}
-        _fit_a_cylinder()
+        _characteristics_kernels()
     return {"seconds": time.perf_counter() - t0, "ahead": ahead, "kernels": progress.kernels,
             "compiled": progress.compiled, "verdicts": verdicts}
 
 
-def _fit_a_cylinder() -> None:
-    """One cylinder fit (its compiled loop, :mod:`inspector.kernels.fits_jit`): the
-    characteristics stage fits one for every bore and boss, but the built-in recipes measure
-    no characteristics, and its first fit would otherwise compile it (4-11 s) on a part."""
+def _characteristics_kernels() -> None:
+    """The characteristics stage's own kernels: a cylinder fit (its compiled loop,
+    :mod:`inspector.kernels.fits_jit`) and the one-thread closest-point query
+    (:func:`inspector.kernels.meshdist.closest_query_serial`). The built-in recipes measure
+    no characteristics, so without this a recipe's first part would compile them (10-15 s)."""
     t = np.linspace(0.0, 2.0 * np.pi, 40, endpoint=False)
     P = np.column_stack([5.0 * np.cos(t), 5.0 * np.sin(t), np.linspace(0.0, 10.0, 40)])
     fits.fit_cylinder(P, axis=np.array([0.0, 0.0, 1.0]), point=np.zeros(3), radius=5.0)
+    from inspector.kernels.meshdist import MeshDistance  # lazy: Numba (see the module docstring)
+
+    box = load_reference("builtin:cube30")
+    MeshDistance(np.asarray(box.vertices, float), np.asarray(box.faces)).closest(P, parallel=False)
 
 
 #: The recorded kernels (``--record``): what :func:`compile_listed` compiles ahead of the run.
