@@ -169,11 +169,11 @@ def _characteristics_kernels() -> None:
     :mod:`inspector.kernels.fits_jit`) and the one-thread closest-point query
     (:func:`inspector.kernels.meshdist.closest_query_serial`). The built-in recipes measure
     no characteristics, so without this a recipe's first part would compile them (10-15 s)."""
+    from inspector.kernels.meshdist import MeshDistance  # lazy: Numba (see the module docstring)
+
     t = np.linspace(0.0, 2.0 * np.pi, 40, endpoint=False)
     P = np.column_stack([5.0 * np.cos(t), 5.0 * np.sin(t), np.linspace(0.0, 10.0, 40)])
     fits.fit_cylinder(P, axis=np.array([0.0, 0.0, 1.0]), point=np.zeros(3), radius=5.0)
-    from inspector.kernels.meshdist import MeshDistance  # lazy: Numba (see the module docstring)
-
     box = load_reference("builtin:cube30")
     MeshDistance(np.asarray(box.vertices, float), np.asarray(box.faces)).closest(P, parallel=False)
 

@@ -43,8 +43,6 @@ from typing import Any
 
 import numpy as np
 
-from inspector.kernels import lp
-
 __all__ = [
     "Fit",
     "FitError",
@@ -683,10 +681,9 @@ def cylinder_lm_numpy(P: np.ndarray, w: np.ndarray, cw: np.ndarray, state: np.nd
         st["basis"] = orthonormal_basis(st["a"])
 
     def residual(delta: np.ndarray, jac: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-        bu, bv = st["basis"]
-        r, J = cylinder_residual_numpy(P, st["p"] + delta[0] * bu + delta[1] * bv,
+        bu, bv = st["basis"]  # (the reference computes J on trial steps too: same result)
+        return cylinder_residual_numpy(P, st["p"] + delta[0] * bu + delta[1] * bv,
                                        _unit(st["a"] + delta[2] * bu + delta[3] * bv), bu, bv, st["R"] + delta[4])
-        return r, J
 
     def recentre(delta: np.ndarray) -> None:
         bu, bv = st["basis"]
@@ -1238,6 +1235,16 @@ def _lp_zone(base: np.ndarray, G: np.ndarray, mode: str = "zone") -> tuple[float
     return {"zone": float(np.ptp(y)), "mcc": float(y.max()), "mic": float(y.min())}[mode], x
 
 
+def _minimize(cost: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """:func:`inspector.kernels.lp.minimize_free`, its failure as a :class:`FitError`."""
+    from inspector.kernels import lp  # lazy: HiGHS, only for a form characteristic (not at recipe load)
+
+    try:
+        return lp.minimize_free(cost, A, b)
+    except lp.LPError as e:
+        raise FitError(f"minimum-zone programme failed: {e}") from None
+
+
 def _lp_solve(base: np.ndarray, G: np.ndarray, mode: str) -> tuple[float, np.ndarray]:
     n, k = G.shape
     # variables: x (k), U, L
@@ -1254,10 +1261,7 @@ def _lp_solve(base: np.ndarray, G: np.ndarray, mode: str) -> tuple[float, np.nda
         A, b = A[:n], b[:n]
     elif mode == "mic":
         A, b = A[n:], b[n:]
-    try:
-        x = lp.minimize_free(cost, A, b)[:k]
-    except lp.LPError as e:
-        raise FitError(f"minimum-zone programme failed: {e}") from None
+    x = _minimize(cost, A, b)[:k]
     y = base + G @ x
     return {"zone": float(np.ptp(y)), "mcc": float(y.max()), "mic": float(y.min())}[mode], x
 
@@ -1323,10 +1327,7 @@ def _zone_blocks(bases: Sequence[np.ndarray], Gs: Sequence[np.ndarray], k0: int 
             zr[0, S * k + s], zr[0, S * k + S + s], zr[0, -1] = 1.0, -1.0, -1.0
             rows += [up, lo, zr]
             rhs += [-b, b, np.zeros(1)]
-        try:
-            sol = lp.minimize_free(cost, np.vstack(rows), np.concatenate(rhs))
-        except lp.LPError as e:
-            raise FitError(f"minimum-zone programme failed: {e}") from None
+        sol = _minimize(cost, np.vstack(rows), np.concatenate(rhs))
         grown = False
         for s in range(S):
             xs[s] = sol[s * k:(s + 1) * k]
