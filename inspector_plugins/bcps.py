@@ -21,7 +21,7 @@ from inspector.errors import StageError
 from inspector.kernels import bcps as bk
 from inspector.kernels.pose import search_pose
 from inspector.kernels.prior import SizePrior
-from inspector.kernels.silhouette import inside_map
+from inspector.kernels.silhouette import inside_map, inside_region
 from inspector.kernels.threads import map_threads
 from inspector.kernels.turn import Rays
 from inspector.model import BcpsPoints
@@ -84,8 +84,10 @@ class ContourRays:
         if self._views is None:
             sils = self.ctx.need("silhouettes", "bcps")
             # OpenCV's distance transform and numpy release the GIL: cameras in parallel
-            # (0.065 -> 0.035 s for 16 cameras on 2 cores).
-            maps = map_threads(lambda s: inside_map(s.soft), sils)
+            # (0.065 -> 0.035 s for 16 cameras on 2 cores). The compiled kernels pack each
+            # map's region around the silhouette: the whole maps are never written
+            # (16 x 5 MP: 320 MB of float32 filled per inspection, 0.3 CPU s).
+            maps = map_threads(lambda s: inside_region(s.soft) if self.compiled else inside_map(s.soft), sils)
             views = [bk.View(cam, m, s.touches_border) for cam, m, s in zip(self.ctx.capture.rig.cameras, maps, sils)]
             stack = None
             if self.compiled:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from inspector.kernels.ray_search import ray_min_search
-from inspector.kernels.silhouette import sample_bilinear
+from inspector.kernels.silhouette import InsideRegion, sample_bilinear
 from inspector.model import Camera
 
 __all__ = ["confidence", "ray_min_distance", "ray_ranges", "View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box"]
@@ -36,15 +36,18 @@ class View:
     Attributes
     ----------
     camera : Camera
-    inside : (H, W) float32
+    inside : (H, W) float32 or InsideRegion
         Signed inside-ness in pixels (:func:`inspector.kernels.silhouette.inside_map`):
-        >= 0 inside the silhouette, minus the distance to it outside.
+        >= 0 inside the silhouette, minus the distance to it outside; or only its computed
+        region (:func:`~inspector.kernels.silhouette.inside_region`), which the compiled
+        kernels pack without ever writing the whole map (the numpy reference kernels
+        write it whole on each use).
     open_border : bool
         The silhouette touches the image border: outside the image is unknown (inside).
     """
 
     camera: Camera
-    inside: np.ndarray
+    inside: np.ndarray | InsideRegion
     open_border: bool = False
 
 
@@ -77,7 +80,8 @@ def hull_violation(X: np.ndarray, views: Sequence[View], limit: float = np.inf, 
         if alive.size == 0:
             break
         uv, z = view.camera.project(X[alive])
-        g = sample_bilinear(view.inside, uv[:, 0], uv[:, 1], outside=np.inf if view.open_border else -1e6)
+        inside = view.inside.full() if isinstance(view.inside, InsideRegion) else view.inside
+        g = sample_bilinear(inside, uv[:, 0], uv[:, 1], outside=np.inf if view.open_border else -1e6)
         g = np.where(z > 0, g, -1e6)
         v[alive] = np.maximum(v[alive], -g)
         alive = alive[v[alive] <= limit]

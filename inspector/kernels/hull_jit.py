@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numba
 import numpy as np
 
+from inspector.kernels.silhouette import InsideRegion
 from inspector.kernels.threads import map_threads
 
 __all__ = ["CameraStack", "stack_views", "violation"]
@@ -74,7 +75,7 @@ def _with_depth(inside: np.ndarray, out: np.ndarray) -> None:
     """
     H, W = inside.shape
     box = _known_box(inside)
-    if box is None or _with_depth_box(inside, box, (0, H, 0, W), out) is None:
+    if box is None or _with_depth_box(inside[box[0]:box[1], box[2]:box[3]], box, (H, W), (0, H, 0, W), out) is None:
         out[...] = inside  # nothing computed, or no inside pixel: the map as it is
 
 
@@ -90,45 +91,51 @@ def _known_box(inside: np.ndarray) -> tuple[int, int, int, int] | None:
     return y, y + h, x, x + w
 
 
-def _with_depth_crop(inside: np.ndarray) -> tuple[np.ndarray, int, int, int]:
-    """:func:`_with_depth` of ``inside`` (H, W), on the region that differs from its
+def _with_depth_crop(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, int, int, int]:
+    """:func:`_with_depth` of ``inside`` (a whole (H, W) map, or its computed region: an
+    :class:`~inspector.kernels.silhouette.InsideRegion`), on the region that differs from its
     constant outside value only: ``(crop, y0, x0, fill)`` where the whole map would be
     ``crop`` at rows ``y0:y0 + h``, columns ``x0:x0 + w`` and ``-fill`` everywhere else
     (``fill`` a whole number of px). The crop is the computed region grown by 1 px (clipped
     to the image), so a bilinear sample that reads any pixel outside it reads ``-fill`` at
     all four corners. Falls back to the whole map (``fill`` 0, unused) when the outside
     value is not a whole number."""
-    H, W = inside.shape
-    box = _known_box(inside)
-    if box is not None:
+    if isinstance(inside, InsideRegion):
+        h, w = inside.values.shape
+        box = (inside.y0, inside.y0 + h, inside.x0, inside.x0 + w) if h and w else None
+        known = inside.values
+        H, W = inside.shape
+    else:
+        H, W = inside.shape
+        box = _known_box(inside)
+        known = inside[box[0]:box[1], box[2]:box[3]] if box is not None else inside
+    if box is not None and (known >= 0.0).any():
         ky0, ky1, kx0, kx1 = box
-        sub = inside[ky0:ky1, kx0:kx1]
-        if (sub >= 0.0).any():
-            y0, y1 = max(ky0 - 1, 0), min(ky1 + 1, H)
-            x0, x1 = max(kx0 - 1, 0), min(kx1 + 1, W)
-            # The same numbers as _with_depth on the whole map: run it on a view of the
-            # grown crop whose outside margin is the whole map's (the crop's own ring is
-            # outside the computed region, as is everything beyond it).
-            full_box = (ky0, ky1, kx0, kx1)
-            out = np.empty((y1 - y0, x1 - x0), np.float32)
-            m = _with_depth_box(inside, full_box, (y0, y1, x0, x1), out)
-            if m is not None and float(m).is_integer():
-                return out, y0, x0, int(m)
+        y0, y1 = max(ky0 - 1, 0), min(ky1 + 1, H)
+        x0, x1 = max(kx0 - 1, 0), min(kx1 + 1, W)
+        # The same numbers as _with_depth on the whole map: written for the grown crop,
+        # whose outside margin is the whole map's (the crop's own ring is outside the
+        # computed region, as is everything beyond it).
+        out = np.empty((y1 - y0, x1 - x0), np.float32)
+        m = _with_depth_box(known, box, (H, W), (y0, y1, x0, x1), out)
+        if m is not None and float(m).is_integer():
+            return out, y0, x0, int(m)
+    whole = inside.full() if isinstance(inside, InsideRegion) else inside
     out = np.empty((H, W), np.float32)
-    _with_depth(inside, out)
+    _with_depth(whole, out)
     return out, 0, 0, 0
 
 
-def _with_depth_box(inside: np.ndarray, known: tuple[int, int, int, int], crop: tuple[int, int, int, int],
-                    out: np.ndarray) -> float | None:
+def _with_depth_box(kcrop: np.ndarray, known: tuple[int, int, int, int], shape: tuple[int, int],
+                    crop: tuple[int, int, int, int], out: np.ndarray) -> float | None:
     """:func:`_with_depth` written only for the rows and columns ``crop`` (y0, y1, x0, x1)
-    of the whole map into ``out`` (crop-sized), ``known`` the computed region; returns the
-    clamp ``m`` (the value outside is ``-m``), or None when the map has no inside pixel."""
+    of the whole map (of ``shape`` (H, W)) into ``out`` (crop-sized), ``kcrop`` the values of
+    its computed region ``known`` (y0, y1, x0, x1); returns the clamp ``m`` (the value
+    outside is ``-m``), or None when the map has no inside pixel."""
     import cv2
 
-    H, W = inside.shape
+    H, W = shape
     ky0, ky1, kx0, kx1 = known
-    kcrop = inside[ky0:ky1, kx0:kx1]
     mask = kcrop >= 0.0
     if not mask.any():
         return None
@@ -165,7 +172,8 @@ def stack_views(views: Sequence) -> CameraStack:
         maps[i, :h, :w] = crop
         maps[i, h:, :] = -float(fill)
         maps[i, :h, w:] = -float(fill)
-        sizes[i] = (v.inside.shape[1], v.inside.shape[0], x0, y0, w, h, fill)
+        H_, W_ = v.inside.shape
+        sizes[i] = (W_, H_, x0, y0, w, h, fill)
     return CameraStack(
         np.stack([v.camera.K for v in views]).astype(np.float64),
         np.stack([v.camera.R for v in views]).astype(np.float64),

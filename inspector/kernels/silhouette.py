@@ -26,7 +26,10 @@ from typing import NamedTuple
 import numpy as np
 
 __all__ = [
+    "FAR_OUTSIDE",
+    "InsideRegion",
     "inside_map",
+    "inside_region",
     "refine_contour_area",
     "to_grey",
     "grey_u8",
@@ -758,38 +761,69 @@ def near_mask(uv: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return out
 
 
-def inside_map(soft: np.ndarray, margin: int = 16) -> np.ndarray:
-    """Signed "inside-ness" of every pixel, in pixels: >= 0 inside the silhouette.
+#: The value of an inside-map beyond its computed region (far outside the silhouette).
+FAR_OUTSIDE = -1e6
+
+
+class InsideRegion(NamedTuple):
+    """The computed part of an inside-map (:func:`inside_region`): ``values`` at rows
+    ``y0:y0 + h`` and columns ``x0:x0 + w`` of an image of ``shape`` (H, W), whose every
+    other pixel is :data:`FAR_OUTSIDE`. ``values`` is (0, 0) when the silhouette is empty.
+    On 16 cameras of 5 MP the whole maps are 320 MB of float32 written for each inspection;
+    the regions about 13 MB."""
+
+    values: np.ndarray
+    y0: int
+    x0: int
+    shape: tuple[int, int]
+
+    def full(self) -> np.ndarray:
+        """The whole map, (H, W) float32."""
+        out = np.full(self.shape, FAR_OUTSIDE, np.float32)
+        h, w = self.values.shape
+        out[self.y0:self.y0 + h, self.x0:self.x0 + w] = self.values
+        return out
+
+
+def inside_region(soft: np.ndarray, margin: int = 16) -> InsideRegion:
+    """Signed "inside-ness" of the pixels around the silhouette, in pixels: >= 0 inside it.
 
     Near the contour it is ``soft - 0.5`` (the coverage ramp, whose 0.5 level is the
     sub-pixel contour); farther out it is minus the distance to the object (Euclidean
     distance transform), so bilinear samples of it tell how far outside a projected point
-    lies. Inside it is clipped at +0.5 (only the outside distance is ever needed).
+    lies. Inside it is clipped at +0.5 (only the outside distance is ever needed). Only a
+    band around the object matters (farther is "far outside" for every use): the region is
+    the silhouette's bounding box plus ``margin`` pixels (clipped to the image).
 
     Parameters
     ----------
     soft : (H, W) float32
         Coverage in [0, 1].
+    margin : int
+        px.
 
     Returns
     -------
-    (H, W) float32
+    InsideRegion
     """
     import cv2
 
     mask = soft >= 0.5
-    out = np.full(soft.shape, -1e6, np.float32)
-    if not mask.any():
-        return out
-    # Only a band around the object matters (farther is "far outside" for every use):
-    # work on its bounding box plus ``margin`` pixels.
-    ys, xs = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-    y0, y1 = max(ys[0] - margin, 0), min(ys[-1] + margin + 1, soft.shape[0])
-    x0, x1 = max(xs[0] - margin, 0), min(xs[-1] + margin + 1, soft.shape[1])
+    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if not len(rows):
+        return InsideRegion(np.zeros((0, 0), np.float32), 0, 0, soft.shape)
+    y0, y1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, soft.shape[0])
+    x0, x1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, soft.shape[1])
     m = mask[y0:y1, x0:x1]
     edt = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
-    out[y0:y1, x0:x1] = np.where(edt <= 1.0, soft[y0:y1, x0:x1] - 0.5, 0.5 - edt)
-    return out
+    values = np.where(edt <= 1.0, soft[y0:y1, x0:x1] - 0.5, 0.5 - edt).astype(np.float32, copy=False)
+    return InsideRegion(values, int(y0), int(x0), soft.shape)
+
+
+def inside_map(soft: np.ndarray, margin: int = 16) -> np.ndarray:
+    """The whole inside-map, (H, W) float32: :func:`inside_region` and :data:`FAR_OUTSIDE`
+    everywhere else (the numpy reference kernels read it whole)."""
+    return inside_region(soft, margin).full()
 
 
 # Marching squares (skimage.measure.find_contours' algorithm), compiled by Numba on first

@@ -292,3 +292,40 @@ def test_cropped_maps_hold_the_whole_maps_numbers(views):
         _with_depth(v.inside, whole.maps[i])
         whole.sizes[i] = (W, H, 0, 0, W, H, 0)
     np.testing.assert_array_equal(violation(X, stack, skip=2), violation(X, whole, skip=2))
+
+
+def test_maps_packed_from_their_regions_equal_the_whole_maps_packed(views):
+    """Issue 26: the bcps stage packs each inside-map from its computed region
+    (:func:`inside_region`), never writing the whole image; the packed maps, their layout
+    and the violations read are those packed from the whole maps, and a region put back in
+    its image is the whole map (a silhouette in the middle, one touching the border, an
+    empty one)."""
+    from inspector.kernels.hull_jit import _with_depth_crop, stack_views, violation
+    from inspector.kernels.silhouette import InsideRegion, inside_map, inside_region
+
+    soft = np.zeros((120, 160), np.float32)
+    soft[0:30, 40:90] = 1.0  # touches the top border
+    soft[30, 40:90] = 0.4
+    soft[60:70, 10:20] = 0.7
+    empty = np.zeros((50, 60), np.float32)
+    for s in (soft, empty):
+        region = inside_region(s)
+        np.testing.assert_array_equal(region.full(), inside_map(s))
+        assert region.values.size < s.size or not region.values.size
+        a, b = _with_depth_crop(region), _with_depth_crop(inside_map(s))
+        np.testing.assert_array_equal(a[0], b[0])
+        assert a[1:] == b[1:]
+    def region_of(inside):
+        ys, xs = np.nonzero(inside > -1e5)
+        y0, x0 = int(ys.min()), int(xs.min())
+        return InsideRegion(inside[y0:ys.max() + 1, x0:xs.max() + 1], y0, x0, inside.shape)
+
+    regions = [bk.View(v.camera, region_of(v.inside), v.open_border) for v in views]
+    assert all(r.inside.values.size < 0.5 * v.inside.size for r, v in zip(regions, views))
+    a, b = stack_views(regions), stack_views(views)
+    np.testing.assert_array_equal(a.maps, b.maps)
+    np.testing.assert_array_equal(a.sizes, b.sizes)
+    X = np.random.default_rng(4).uniform(-14, 14, size=(2000, 3))
+    np.testing.assert_array_equal(violation(X, a, skip=1), violation(X, b, skip=1))
+    # the numpy reference reads a region as its whole map
+    np.testing.assert_array_equal(bk.hull_violation(X, regions, skip=1), bk.hull_violation(X, views, skip=1))
