@@ -196,13 +196,21 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
                     x0 = origin[0] + tt * d0
                     x1 = origin[1] + tt * d1
                     x2 = origin[2] + tt * d2
+                    # The distance first: a sample no nearer than the level's seed cannot win
+                    # whatever its violation (cost = distance + penalty >= distance), and one
+                    # distance costs less than testing the hull, which reads most cameras'
+                    # maps near the hull's edge. Exact: a distance outside the index's band
+                    # (NaN) flags the ray only where the hull would have let the sample
+                    # compete, as before.
+                    s = _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc)
+                    if s >= cb:
+                        continue
                     v, first = _violation(x0, x1, x2, tt, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lc, grec, trec)
                     if v > eps:
                         continue
                     pen = weight * max(v - tol, 0.0)
                     if bound + pen >= cb:
                         continue
-                    s = _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc)
                     if np.isnan(s):
                         oob = True
                         continue
