@@ -10,7 +10,7 @@ module only adapts the inspection context to the kernels.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
@@ -38,9 +38,7 @@ class RayParams:
     refine_robust_mm: float = param(0.1, "robust scale of the re-alignment (points beyond are down-weighted), mm", min=0.001, max=100.0)
     refine_start_mm: float = param(1.0, "initial robust scale of the re-alignment, shrinking to refine_robust_mm, mm", min=0.001, max=100.0)
     refine_stride: int = param(3, "the selection that feeds the re-alignment uses every n-th contour point", min=1, max=1000)
-    refine_rays: int = param(12000, "... and at most about this many contour points in all (every n-th with n above "
-                                    "refine_stride where the cameras' contours hold more): the re-alignment's cost "
-                                    "stays flat as cameras are added", min=100, max=100_000_000)
+    refine_rays: int = param(12000, "... and at most about this many in all (a larger n where the contours hold more: the re-alignment's cost stays flat as cameras are added)", min=100, max=100_000_000)
     tolerance_px: float = param(0.05, "hull tolerance of a strict candidate, px (contour noise)", min=0.0, max=2.0)
     accept_px: float = param(0.2, "largest hull violation of a selected point, px, plus the silhouettes' contour uncertainty (hard-edged images: 0.3 px; beyond: the ray has no point)", min=0.0, max=5.0)
     violation_weight: float = param(3.0, "cost of 1 px of hull violation, in pixel footprints of deviation", min=0.0, max=1000.0)
@@ -86,10 +84,9 @@ class ContourRays:
         """The silhouettes as :class:`~inspector.kernels.bcps.View` and, compiled, their stack."""
         if self._views is None:
             sils = self.ctx.need("silhouettes", "bcps")
-            # OpenCV's distance transform and numpy release the GIL: cameras in parallel
-            # (0.065 -> 0.035 s for 16 cameras on 2 cores). The compiled kernels pack each
-            # map's region around the silhouette: the whole maps are never written
-            # (16 x 5 MP: 320 MB of float32 filled per inspection, 0.3 CPU s).
+            # OpenCV's distance transform and numpy release the GIL: cameras in parallel. The
+            # compiled kernels pack each map's region around the silhouette: the whole maps
+            # are never written (16 x 5 MP: 320 MB of float32 filled per inspection).
             maps = map_threads(lambda s: inside_region(s.soft) if self.compiled else inside_map(s.soft), sils)
             views = [bk.View(cam, m, s.touches_border) for cam, m, s in zip(self.ctx.capture.rig.cameras, maps, sils)]
             stack = None
@@ -134,22 +131,6 @@ def _placed_distance(index: Callable[[np.ndarray], np.ndarray], inv: np.ndarray,
     return scale * index(X @ inv[:3, :3].T + inv[:3, 3])
 
 
-def sparse_stride(p: RayParams, contour_points: Sequence[int]) -> int:
-    """Every how many contour points a sparse selection (one that feeds a pose fit) takes
-    one: ``refine_stride``, or more so that the rig's ``contour_points`` (one count per
-    camera) give at most about ``refine_rays``.
-
-    A pose has six degrees of freedom (seven with the size); the 7 000 rays that 16 cameras
-    of 1 MP give a 30 mm cube at stride 3 fix it, and twice the cameras need not give twice
-    the rays: with a fixed stride the sparse selections' cost grew with the camera count
-    twice over (more rays, each tested against more cameras: issue 26,
-    docs/benchmarks-5mp.md). The default leaves the stride at 3 up to 36 000 contour points
-    (16 cameras of 1 MP on the 60 mm bracket: 33 800).
-    """
-    total = int(sum(contour_points))
-    return max(p.refine_stride, -(-total // p.refine_rays))
-
-
 def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: np.ndarray, *, sparse: bool = False,
                 prior: SizePrior | None = None) -> BcpsPoints:
     """Run the ``ray`` method on every camera for the reference placed at ``pose``.
@@ -172,7 +153,7 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
     # 1-1.8 px off in bulges at 0.2 px, a false reject).
     accept = p.accept_px + max(s.edge_px for s in sils)
     levels = p.refine_levels - 1 if sparse and p.refine_levels > 1 else p.refine_levels
-    sub = slice(None, None, sparse_stride(p, [len(s.contour) for s in sils]) if sparse else 1)
+    sub = slice(None, None, bk.sparse_stride([len(s.contour) for s in sils], p.refine_stride, p.refine_rays) if sparse else 1)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
     for i, sil in enumerate(sils):
         if len(sil.contour) == 0:

@@ -24,7 +24,7 @@ from inspector.kernels.ray_search import ray_min_search
 from inspector.kernels.silhouette import InsideRegion, sample_bilinear
 from inspector.model import Camera
 
-__all__ = ["confidence", "ray_min_distance", "ray_ranges", "View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box"]
+__all__ = ["confidence", "ray_min_distance", "ray_ranges", "View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box", "sparse_stride"]
 
 SignedDistance = Callable[[np.ndarray], np.ndarray]
 
@@ -49,6 +49,21 @@ class View:
     camera: Camera
     inside: np.ndarray | InsideRegion
     open_border: bool = False
+
+
+def sparse_stride(contour_points: Sequence[int], stride: int, most: int) -> int:
+    """Every how many contour points a sparse selection (one that feeds a pose fit) takes
+    one: ``stride``, or more so that the rig's ``contour_points`` (one count per camera)
+    give at most about ``most`` rays.
+
+    A pose has six degrees of freedom (seven with the size); the 7 000 rays that 16 cameras
+    of 1 MP give a 30 mm cube at stride 3 fix it, and twice the cameras need not give twice
+    the rays: with a fixed stride the sparse selections' cost grew with the camera count
+    twice over (more rays, each tested against more cameras: issue 26,
+    docs/benchmarks-5mp.md). With ``most`` 12 000 the stride stays 3 up to 36 000 contour
+    points (16 cameras of 1 MP on the 60 mm bracket: 33 800).
+    """
+    return max(int(stride), -(-int(sum(contour_points)) // int(most)))
 
 
 def hull_violation(X: np.ndarray, views: Sequence[View], limit: float = np.inf, skip: int = -1) -> np.ndarray:

@@ -329,3 +329,27 @@ def test_maps_packed_from_their_regions_equal_the_whole_maps_packed(views):
     np.testing.assert_array_equal(violation(X, a, skip=1), violation(X, b, skip=1))
     # the numpy reference reads a region as its whole map
     np.testing.assert_array_equal(bk.hull_violation(X, regions, skip=1), bk.hull_violation(X, views, skip=1))
+
+
+def test_sparse_stride_keeps_the_rays_per_fit_flat_as_cameras_are_added():
+    from inspector.params import build_params
+    from inspector_plugins.bcps import RayParams
+
+    p = build_params(RayParams, {}, "bcps.ray")
+
+    def stride(counts):
+        return bk.sparse_stride(counts, p.refine_stride, p.refine_rays)
+
+    # 16 cameras of 1 MP on the 30 mm cube (20 875 contour points) and on the 60 mm bracket
+    # (33 828): the configured stride, 7 000 and 11 300 rays per fit.
+    assert stride([1305] * 16) == 3
+    assert stride([2114] * 16) == 3
+    # 32 cameras on the cube (40 706): every 4th, 10 200 rays, not 13 600.
+    assert stride([1272] * 32) == 4
+    for cams in (8, 16, 32, 64, 128):
+        counts = [2000] * cams
+        s = stride(counts)
+        assert s >= p.refine_stride and sum(counts) / s <= p.refine_rays
+    # never below the configured stride, however few the points
+    assert bk.sparse_stride([10] * 4, 5, 12000) == 5
+    assert bk.sparse_stride([1000] * 16, 3, 1000) == 16
