@@ -120,6 +120,8 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
         first = 0
         grec = np.empty(C)
         trec = np.full(C, np.nan)
+        gs = np.empty(nref)  # a refinement level's distances, in the order tested
+        gj = np.empty(nref, np.int64)  # and their grid indices
         eps = max(0.5 * lip * step, accept)
         bc = np.inf
         bt = 0.0
@@ -188,38 +190,62 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
                 lt = 0.0
                 lv = 0.0
                 ls = 0.0
+                lj = nref
+                # The grid's distances first, then its samples in increasing distance: the
+                # first one the hull admits without penalty ends the level (every other one
+                # is no nearer, and its cost, distance plus penalty, cannot be lower). The
+                # hull test, which reads most cameras' maps near the hull's edge, runs on
+                # those samples only, instead of on every sample nearer than the seed. The
+                # same winner as testing them in grid order: the least cost, the first in
+                # grid order among equal ones. A sample no nearer than the level's seed is
+                # never tested; one whose distance is outside the index's band (NaN) is
+                # tested last, and flags the ray only where the hull lets it compete.
+                m = 0
                 for j in range(nref):
                     tt = bt + hh * offsets[j]
-                    bound = bs - abs(tt - bt)
-                    if bound >= cb:
+                    if bs - abs(tt - bt) >= cb:
+                        continue  # (the distance is 1-Lipschitz: it cannot beat the seed)
+                    s = _sd(origin[0] + tt * d0, origin[1] + tt * d1, origin[2] + tt * d2, Ai, sc, tri, pn, lo, h,
+                            dims, start, items, dc)
+                    if s >= cb:
                         continue
+                    # insertion into the order: by distance, NaN last, then by grid index
+                    k = m
+                    while k > 0 and (np.isnan(gs[k - 1]) and not np.isnan(s) or gs[k - 1] > s):
+                        gs[k] = gs[k - 1]
+                        gj[k] = gj[k - 1]
+                        k -= 1
+                    gs[k] = s
+                    gj[k] = j
+                    m += 1
+                for k in range(m):
+                    s = gs[k]
+                    j = gj[k]
+                    nan = np.isnan(s)
+                    if nan and oob:
+                        break  # the ray is flagged already; a NaN never wins
+                    if not nan and (s > lcost or (s == lcost and j > lj)):
+                        continue  # cannot win (the rest, further in the order, may still be NaN)
+                    tt = bt + hh * offsets[j]
                     x0 = origin[0] + tt * d0
                     x1 = origin[1] + tt * d1
                     x2 = origin[2] + tt * d2
-                    # The distance first: a sample no nearer than the level's seed cannot win
-                    # whatever its violation (cost = distance + penalty >= distance), and one
-                    # distance costs less than testing the hull, which reads most cameras'
-                    # maps near the hull's edge. Exact: a distance outside the index's band
-                    # (NaN) flags the ray only where the hull would have let the sample
-                    # compete, as before.
-                    s = _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc)
-                    if s >= cb:
-                        continue
                     v, first = _violation(x0, x1, x2, tt, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lc, grec, trec)
                     if v > eps:
                         continue
                     pen = weight * max(v - tol, 0.0)
-                    if bound + pen >= cb:
+                    if bs - abs(tt - bt) + pen >= cb:
                         continue
-                    if np.isnan(s):
+                    if nan:
                         oob = True
                         continue
                     c = s + pen
-                    if c < lcost:
+                    if c < lcost or (c == lcost and j < lj):
                         lcost = c
                         lt = tt
                         lv = v
                         ls = s
+                        lj = j
                 if lcost < cb:
                     bt = lt
                     bv = lv
