@@ -91,6 +91,26 @@ def _known_box(inside: np.ndarray) -> tuple[int, int, int, int] | None:
     return y, y + h, x, x + w
 
 
+def _crop_plan(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, tuple[int, int, int, int], tuple[int, int],
+                                                            tuple[int, int, int, int]] | None:
+    """Where :func:`_with_depth_crop` writes ``inside``: ``(known values, known box, image
+    shape, crop box)`` (boxes as y0, y1, x0, x1; the crop is the known region grown by 1 px,
+    clipped to the image), or None when nothing was computed."""
+    if isinstance(inside, InsideRegion):
+        h, w = inside.values.shape
+        if not (h and w):
+            return None
+        box = (inside.y0, inside.y0 + h, inside.x0, inside.x0 + w)
+        known, (H, W) = inside.values, inside.shape
+    else:
+        (H, W), found = inside.shape, _known_box(inside)
+        if found is None:
+            return None
+        box, known = found, inside[found[0]:found[1], found[2]:found[3]]
+    ky0, ky1, kx0, kx1 = box
+    return known, box, (H, W), (max(ky0 - 1, 0), min(ky1 + 1, H), max(kx0 - 1, 0), min(kx1 + 1, W))
+
+
 def _with_depth_crop(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, int, int, int]:
     """:func:`_with_depth` of ``inside`` (a whole (H, W) map, or its computed region: an
     :class:`~inspector.kernels.silhouette.InsideRegion`), on the region that differs from its
@@ -100,26 +120,17 @@ def _with_depth_crop(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, int
     to the image), so a bilinear sample that reads any pixel outside it reads ``-fill`` at
     all four corners. Falls back to the whole map (``fill`` 0, unused) when the outside
     value is not a whole number."""
-    if isinstance(inside, InsideRegion):
-        h, w = inside.values.shape
-        box = (inside.y0, inside.y0 + h, inside.x0, inside.x0 + w) if h and w else None
-        known = inside.values
-        H, W = inside.shape
-    else:
-        H, W = inside.shape
-        box = _known_box(inside)
-        known = inside[box[0]:box[1], box[2]:box[3]] if box is not None else inside
-    if box is not None and (known >= 0.0).any():
-        ky0, ky1, kx0, kx1 = box
-        y0, y1 = max(ky0 - 1, 0), min(ky1 + 1, H)
-        x0, x1 = max(kx0 - 1, 0), min(kx1 + 1, W)
+    plan = _crop_plan(inside)
+    if plan is not None:
+        known, box, shape, (y0, y1, x0, x1) = plan
         # The same numbers as _with_depth on the whole map: written for the grown crop,
         # whose outside margin is the whole map's (the crop's own ring is outside the
         # computed region, as is everything beyond it).
         out = np.empty((y1 - y0, x1 - x0), np.float32)
-        m = _with_depth_box(known, box, (H, W), (y0, y1, x0, x1), out)
+        m = _with_depth_box(known, box, shape, (y0, y1, x0, x1), out)
         if m is not None and float(m).is_integer():
             return out, y0, x0, int(m)
+    H, W = inside.shape
     whole = inside.full() if isinstance(inside, InsideRegion) else inside
     out = np.empty((H, W), np.float32)
     _with_depth(whole, out)
@@ -161,19 +172,42 @@ def stack_views(views: Sequence) -> CameraStack:
     """Pack :class:`inspector.kernels.bcps.View` objects (maps as :func:`_with_depth`,
     each cropped to its silhouette's neighbourhood: :class:`CameraStack`)."""
     C = len(views)
-    # OpenCV and numpy release the GIL on these arrays: cameras in parallel
-    crops = map_threads(lambda v: _with_depth_crop(v.inside), views)
-    H = max(c[0].shape[0] for c in crops)
-    W = max(c[0].shape[1] for c in crops)
-    maps = np.empty((C, H, W), np.float32)
     sizes = np.zeros((C, 7), np.int64)
-    for i, (v, (crop, y0, x0, fill)) in enumerate(zip(views, crops)):
-        h, w = crop.shape
-        maps[i, :h, :w] = crop
-        maps[i, h:, :] = -float(fill)
-        maps[i, :h, w:] = -float(fill)
-        H_, W_ = v.inside.shape
-        sizes[i] = (W_, H_, x0, y0, w, h, fill)
+    found = [_crop_plan(v.inside) for v in views]
+    plans = [p for p in found if p is not None]
+    maps: np.ndarray | None = None
+    if len(plans) == C:
+        # Each crop written straight into the stack (32 cameras: 38 MB not written twice)
+        H = max(p[3][1] - p[3][0] for p in plans)
+        W = max(p[3][3] - p[3][2] for p in plans)
+        packed = maps = np.empty((C, H, W), np.float32)
+
+        def one(i: int) -> bool:
+            known, box, (Hi, Wi), (y0, y1, x0, x1) = plans[i]
+            h, w = y1 - y0, x1 - x0
+            m = _with_depth_box(known, box, (Hi, Wi), (y0, y1, x0, x1), packed[i, :h, :w])
+            if m is None or not float(m).is_integer():
+                return False
+            packed[i, h:, :] = -m
+            packed[i, :h, w:] = -m
+            sizes[i] = (Wi, Hi, x0, y0, w, h, int(m))
+            return True
+
+        # OpenCV and numpy release the GIL on these arrays: cameras in parallel
+        if not all(map_threads(one, range(C))):
+            maps = None
+    if maps is None:  # a camera without an inside pixel: its whole map, as _with_depth_crop
+        crops = map_threads(lambda v: _with_depth_crop(v.inside), views)
+        H = max(c[0].shape[0] for c in crops)
+        W = max(c[0].shape[1] for c in crops)
+        maps = np.empty((C, H, W), np.float32)
+        for i, (v, (crop, y0, x0, fill)) in enumerate(zip(views, crops)):
+            h, w = crop.shape
+            maps[i, :h, :w] = crop
+            maps[i, h:, :] = -float(fill)
+            maps[i, :h, w:] = -float(fill)
+            Hi, Wi = v.inside.shape
+            sizes[i] = (Wi, Hi, x0, y0, w, h, fill)
     return CameraStack(
         np.stack([v.camera.K for v in views]).astype(np.float64),
         np.stack([v.camera.R for v in views]).astype(np.float64),

@@ -353,3 +353,22 @@ def test_sparse_stride_keeps_the_rays_per_fit_flat_as_cameras_are_added():
     # never below the configured stride, however few the points
     assert bk.sparse_stride([10] * 4, 5, 12000) == 5
     assert bk.sparse_stride([1000] * 16, 3, 1000) == 16
+
+
+def test_a_camera_without_silhouette_is_packed_whole(views):
+    """A camera whose map holds no inside pixel is packed as its whole map (the layout the
+    kernel reads for it: crop at 0, 0, fill 0) and the others as their crops, exactly as each
+    camera packed alone."""
+    from inspector.kernels.hull_jit import _with_depth_crop, stack_views
+    from inspector.kernels.silhouette import inside_map
+
+    H, W = views[0].inside.shape
+    empty = bk.View(views[0].camera, inside_map(np.zeros((H, W), np.float32)), False)
+    mixed = [*views, empty]
+    stack = stack_views(mixed)
+    for i, v in enumerate(mixed):
+        crop, y0, x0, fill = _with_depth_crop(v.inside)
+        h, w = crop.shape
+        assert tuple(stack.sizes[i]) == (W, H, x0, y0, w, h, fill)
+        np.testing.assert_array_equal(stack.maps[i, :h, :w], crop)
+    assert tuple(stack.sizes[-1][2:]) == (0, 0, W, H, 0)
