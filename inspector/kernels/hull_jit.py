@@ -91,15 +91,15 @@ def _known_box(inside: np.ndarray) -> tuple[int, int, int, int] | None:
     return y, y + h, x, x + w
 
 
-def _crop_plan(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, tuple[int, int, int, int], tuple[int, int],
-                                                            tuple[int, int, int, int]] | None:
+_Plan = tuple[np.ndarray, tuple[int, int, int, int], tuple[int, int], tuple[int, int, int, int]]
+
+
+def _crop_plan(inside: np.ndarray | InsideRegion) -> _Plan | None:
     """Where :func:`_with_depth_crop` writes ``inside``: ``(known values, known box, image
     shape, crop box)`` (boxes as y0, y1, x0, x1; the crop is the known region grown by 1 px,
-    clipped to the image), or None when nothing was computed."""
+    clipped to the image), or None when the map has no inside pixel (it is kept whole)."""
     if isinstance(inside, InsideRegion):
         h, w = inside.values.shape
-        if not (h and w):
-            return None
         box = (inside.y0, inside.y0 + h, inside.x0, inside.x0 + w)
         known, (H, W) = inside.values, inside.shape
     else:
@@ -107,8 +107,25 @@ def _crop_plan(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, tuple[int
         if found is None:
             return None
         box, known = found, inside[found[0]:found[1], found[2]:found[3]]
+    if not (known >= 0.0).any():
+        return None
     ky0, ky1, kx0, kx1 = box
     return known, box, (H, W), (max(ky0 - 1, 0), min(ky1 + 1, H), max(kx0 - 1, 0), min(kx1 + 1, W))
+
+
+def _write_crop(inside: np.ndarray | InsideRegion, plan: _Plan | None, out: np.ndarray) -> int:
+    """Write :func:`_with_depth` of ``inside`` for ``plan``'s crop into ``out`` (crop-sized;
+    the whole map's size when ``plan`` is None) and return the whole number ``fill`` (the
+    value beyond the crop is ``-fill``; 0 for a whole map)."""
+    if plan is None:
+        _with_depth(inside.full() if isinstance(inside, InsideRegion) else inside, out)
+        return 0
+    # The same numbers as _with_depth on the whole map: written for the grown crop, whose
+    # outside margin is the whole map's (the crop's own ring is outside the computed
+    # region, as is everything beyond it). The clamp is a whole number of px: CLAMP_PX or
+    # the computed region's margin beyond the silhouette.
+    known, box, shape, crop = plan
+    return int(_with_depth_box(known, box, shape, crop, out))  # type: ignore[arg-type]  # not None: it has an inside pixel
 
 
 def _with_depth_crop(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, int, int, int]:
@@ -118,23 +135,11 @@ def _with_depth_crop(inside: np.ndarray | InsideRegion) -> tuple[np.ndarray, int
     ``crop`` at rows ``y0:y0 + h``, columns ``x0:x0 + w`` and ``-fill`` everywhere else
     (``fill`` a whole number of px). The crop is the computed region grown by 1 px (clipped
     to the image), so a bilinear sample that reads any pixel outside it reads ``-fill`` at
-    all four corners. Falls back to the whole map (``fill`` 0, unused) when the outside
-    value is not a whole number."""
+    all four corners. A map without an inside pixel is returned whole (``fill`` 0, unused)."""
     plan = _crop_plan(inside)
-    if plan is not None:
-        known, box, shape, (y0, y1, x0, x1) = plan
-        # The same numbers as _with_depth on the whole map: written for the grown crop,
-        # whose outside margin is the whole map's (the crop's own ring is outside the
-        # computed region, as is everything beyond it).
-        out = np.empty((y1 - y0, x1 - x0), np.float32)
-        m = _with_depth_box(known, box, shape, (y0, y1, x0, x1), out)
-        if m is not None and float(m).is_integer():
-            return out, y0, x0, int(m)
-    H, W = inside.shape
-    whole = inside.full() if isinstance(inside, InsideRegion) else inside
-    out = np.empty((H, W), np.float32)
-    _with_depth(whole, out)
-    return out, 0, 0, 0
+    y0, y1, x0, x1 = plan[3] if plan is not None else (0, inside.shape[0], 0, inside.shape[1])
+    out = np.empty((y1 - y0, x1 - x0), np.float32)
+    return out, y0, x0, _write_crop(inside, plan, out)
 
 
 def _with_depth_box(kcrop: np.ndarray, known: tuple[int, int, int, int], shape: tuple[int, int],
@@ -170,44 +175,25 @@ def _with_depth_box(kcrop: np.ndarray, known: tuple[int, int, int, int], shape: 
 
 def stack_views(views: Sequence) -> CameraStack:
     """Pack :class:`inspector.kernels.bcps.View` objects (maps as :func:`_with_depth`,
-    each cropped to its silhouette's neighbourhood: :class:`CameraStack`)."""
+    each cropped to its silhouette's neighbourhood: :class:`CameraStack`), each crop
+    written straight into the stack (as :func:`_with_depth_crop`)."""
     C = len(views)
+    plans = [_crop_plan(v.inside) for v in views]
+    boxes = [p[3] if p is not None else (0, v.inside.shape[0], 0, v.inside.shape[1]) for v, p in zip(views, plans)]
+    maps = np.empty((C, max(b[1] - b[0] for b in boxes), max(b[3] - b[2] for b in boxes)), np.float32)
     sizes = np.zeros((C, 7), np.int64)
-    found = [_crop_plan(v.inside) for v in views]
-    plans = [p for p in found if p is not None]
-    maps: np.ndarray | None = None
-    if len(plans) == C:
-        # Each crop written straight into the stack (32 cameras: 38 MB not written twice)
-        H = max(p[3][1] - p[3][0] for p in plans)
-        W = max(p[3][3] - p[3][2] for p in plans)
-        packed = maps = np.empty((C, H, W), np.float32)
 
-        def one(i: int) -> bool:
-            known, box, (Hi, Wi), (y0, y1, x0, x1) = plans[i]
-            h, w = y1 - y0, x1 - x0
-            m = _with_depth_box(known, box, (Hi, Wi), (y0, y1, x0, x1), packed[i, :h, :w])
-            if m is None or not float(m).is_integer():
-                return False
-            packed[i, h:, :] = -m
-            packed[i, :h, w:] = -m
-            sizes[i] = (Wi, Hi, x0, y0, w, h, int(m))
-            return True
+    def one(i: int) -> None:
+        y0, y1, x0, x1 = boxes[i]
+        h, w = y1 - y0, x1 - x0
+        fill = _write_crop(views[i].inside, plans[i], maps[i, :h, :w])
+        maps[i, h:, :] = -float(fill)
+        maps[i, :h, w:] = -float(fill)
+        H, W = views[i].inside.shape
+        sizes[i] = (W, H, x0, y0, w, h, fill)
 
-        # OpenCV and numpy release the GIL on these arrays: cameras in parallel
-        if not all(map_threads(one, range(C))):
-            maps = None
-    if maps is None:  # a camera without an inside pixel: its whole map, as _with_depth_crop
-        crops = map_threads(lambda v: _with_depth_crop(v.inside), views)
-        H = max(c[0].shape[0] for c in crops)
-        W = max(c[0].shape[1] for c in crops)
-        maps = np.empty((C, H, W), np.float32)
-        for i, (v, (crop, y0, x0, fill)) in enumerate(zip(views, crops)):
-            h, w = crop.shape
-            maps[i, :h, :w] = crop
-            maps[i, h:, :] = -float(fill)
-            maps[i, :h, w:] = -float(fill)
-            Hi, Wi = v.inside.shape
-            sizes[i] = (Wi, Hi, x0, y0, w, h, fill)
+    # OpenCV and numpy release the GIL on these arrays: cameras in parallel
+    map_threads(one, range(C))
     return CameraStack(
         np.stack([v.camera.K for v in views]).astype(np.float64),
         np.stack([v.camera.R for v in views]).astype(np.float64),
