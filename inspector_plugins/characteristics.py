@@ -65,13 +65,16 @@ class CharacteristicsParams:
     per_camera: bool = param(True, "count the points of one camera's contour as erring together: each fit's "
                                    "uncertainty grows by their between-camera scatter (a plane seen only along "
                                    "edges that few cameras show is held by a few observations, not thousands)")
+    snap_edges: bool = param(True, "move the points near a sharp edge between two planes along their contour rays "
+                                   "onto the edge the rays show (the hull places them outside the faces; "
+                                   "docs/characteristics.md)")
     fail_not_measurable: bool = param(False, "a characteristic the silhouettes cannot measure fails the part "
                                              "(default: reported with its reason, the verdict unchanged)")
 
 
 def rows(ctx: InspectionContext, p: CharacteristicsParams) -> list[dict[str, Any]]:
     """The characteristics of ``ctx``'s part, as ``result.json`` rows (see the module)."""
-    from inspector.characteristics.definitions import SETTINGS_KEY, features_for
+    from inspector.characteristics.definitions import SETTINGS_KEY, edges_for, features_for
     from inspector.characteristics.measure import measure
 
     chars = tuple(ctx.settings.get(SETTINGS_KEY, ()))
@@ -88,8 +91,13 @@ def rows(ctx: InspectionContext, p: CharacteristicsParams) -> list[dict[str, Any
         weights = confidence(sel.segment_mm, fp)
     u_surface = p.u_surface_px * fp if fp is not None else 0.0
     groups = np.asarray(sel.camera) if p.per_camera and len(sel.camera) == len(local) else None
+    origins, edges = None, ()
+    if p.snap_edges and len(sel.camera) == len(local) and len(ctx.capture.rig):
+        centres = np.stack([cam.centre for cam in ctx.capture.rig])
+        origins = ref.to_reference_frame(centres, pose)[np.asarray(sel.camera, np.int64)]
+        edges = edges_for(ref.vertices, ref.faces)
     results = measure(chars, feats, local, weights, ref, band_mm=p.band_mm, max_u_fraction=p.max_u_fraction,
-                      u_surface_mm=u_surface, groups=groups)
+                      u_surface_mm=u_surface, groups=groups, origins=origins, edges=edges)
     out = []
     for c, r in zip(chars, results):
         out.append({**r.to_json(), "unit": c.unit, "criticality": c.criticality, "description": c.label})

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from inspector.characteristics.edges import plane_edges
 from inspector.characteristics.measure import Characteristic
 from inspector.errors import InspectorError, RecipeError
 from inspector.kernels.features import find_features
@@ -48,7 +49,7 @@ SETTINGS_KEY = "characteristics"
 
 #: Meshes whose features are kept (a cell runs one reference; a GUI may switch between a few).
 _CACHE_SIZE = 8
-_cache: OrderedDict[str, list[Any]] = OrderedDict()
+_cache: OrderedDict[str, Any] = OrderedDict()  # features (a list) and edges (a tuple) by mesh digest
 _lock = threading.Lock()
 
 
@@ -86,6 +87,22 @@ def features_for(vertices: np.ndarray, faces: np.ndarray) -> list[Any]:
         while len(_cache) > _CACHE_SIZE:
             _cache.popitem(last=False)
     return feats
+
+
+def edges_for(vertices: np.ndarray, faces: np.ndarray) -> tuple[Any, ...]:
+    """The convex edges between the plane features of a mesh
+    (:func:`inspector.characteristics.edges.plane_edges`), found once per mesh and process."""
+    key = "edges:" + _digest(vertices, faces)
+    with _lock:
+        if key in _cache:
+            _cache.move_to_end(key)
+            return _cache[key]
+    edges = plane_edges(vertices, faces, features_for(vertices, faces))
+    with _lock:
+        _cache[key] = edges
+        while len(_cache) > _CACHE_SIZE:
+            _cache.popitem(last=False)
+    return edges
 
 
 def features_of_reference(spec: str) -> list[Any]:

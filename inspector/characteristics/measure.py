@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from inspector.characteristics.edges import EdgeSnap, replica_planes, snap_to_edges
 from inspector.errors import RecipeError
 from inspector.kernels import fits
 from inspector.kernels.features import Feature
@@ -298,21 +299,32 @@ def assign_points(points_ref: np.ndarray, features: Sequence[Feature], reference
     (N,) int
         Position in ``features``, or -1 (beyond the band, or on a triangle of no feature).
     """
+    return _assigned(points_ref, features, reference, band_mm)[0]
+
+
+def _assigned(points_ref: np.ndarray, features: Sequence[Feature], reference: Any,
+              band_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`assign_points`, and each point's nearest reference triangle (N,) (-1: none)."""
     P = np.asarray(points_ref, float).reshape(-1, 3)
     out = np.full(len(P), -1, np.int64)
     if len(P) == 0 or not len(features):
-        return out
+        return out, out.copy()
     # Every point is asked: the compiled closest-point query costs about 0.2 us a point, less
     # than a numpy pre-selection by the features' boxes did (measured: 3 ms against 13 ms for
     # 15000 points and 11 features). On one thread: see meshdist.closest_query_serial.
     q, tid = reference.distance.closest(P, parallel=False)
-    owner = np.full(len(reference.faces), -1, np.int64)
-    for k, f in enumerate(features):
-        owner[f.faces] = k
-    got = np.where(tid >= 0, owner[np.clip(tid, 0, None)], -1)
+    got = _owner(tid, features, len(reference.faces))
     d = P - q
     got[~(np.einsum("ij,ij->i", d, d) <= band_mm * band_mm)] = -1  # NaN (no closest point): not <=
-    return got
+    return got, np.asarray(tid, np.int64)
+
+
+def _owner(tid: np.ndarray, features: Sequence[Feature], faces: int) -> np.ndarray:
+    """The position in ``features`` of the feature owning each triangle ``tid`` (-1: none)."""
+    owner = np.full(faces, -1, np.int64)
+    for k, f in enumerate(features):
+        owner[f.faces] = k
+    return np.where(tid >= 0, owner[np.clip(tid, 0, None)], -1)
 
 
 def _robust_fit(f: Feature, P: np.ndarray, w: np.ndarray) -> tuple[fits.Fit, np.ndarray]:
@@ -367,7 +379,8 @@ def _fit_kind(f: Feature, P: np.ndarray, w: np.ndarray, start: Mapping[str, Any]
 def measure(characteristics: Sequence[Characteristic], features: Sequence[Feature], points_ref: np.ndarray,
             weights: np.ndarray | None, reference: Any, *, band_mm: float = 0.5, max_u_fraction: float = 0.5,
             slice_mm: float | None = None, u_surface_mm: float = 0.0,
-            groups: np.ndarray | None = None) -> list[CharacteristicResult]:
+            groups: np.ndarray | None = None, origins: np.ndarray | None = None,
+            edges: Sequence[Any] = ()) -> list[CharacteristicResult]:
     """Measure characteristics from one inspection's points.
 
     Parameters
@@ -399,6 +412,14 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
         covariance is scaled by the points' design effect over these groups
         (:func:`inspector.kernels.fits.grouped`), so points that err together are not
         counted as independent. None: every point independent.
+    origins : (N, 3) float, optional
+        The centre of the camera whose contour ray gave each point (reference frame, mm):
+        with ``edges``, the points near a sharp edge between two planes are moved along their
+        rays onto the edge the rays show, and belong to both planes
+        (:func:`inspector.characteristics.edges.snap_to_edges`).
+    edges : sequence of PlaneEdge
+        The reference's convex edges between planes
+        (:func:`inspector.characteristics.edges.plane_edges`).
 
     Returns
     -------
@@ -418,7 +439,13 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
         raise ValueError(f"groups must be ({len(P)},), got {g.shape}")
     needed = sorted({fid for c in characteristics for fid in c.features})
     used = [by_id[fid] for fid in needed]
-    owner = assign_points(P, used, reference, band_mm)
+    owner, tid = _assigned(P, used, reference, band_mm)
+    snapped: tuple[np.ndarray, EdgeSnap] | None = None
+    if origins is not None and len(edges):
+        nearest = _owner(tid, features, len(reference.faces))  # the edges' feature positions index `features`
+        P, w, g, owner, snapped = _snapped(P, w, g, owner, np.asarray(origins, float).reshape(-1, 3), edges, used,
+                                           band_mm, nearest)
+    jack: dict[str, dict[Any, Any]] = {}  # each plane's leave-one-camera-out planes, made once
     fitted: dict[str, tuple[fits.Fit, np.ndarray]] = {}
     groups_of: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # each fitted feature's points' groups and weights
     # Each feature's points as one slice of a stable sort by owner (in their original order):
@@ -434,12 +461,55 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
             gk, wk = g[sel][keep], wf[keep]
             fit = fits.grouped(fit, gk, wk)
             groups_of[f.id] = (gk, wk)
+            if snapped is not None and f.kind == "plane":
+                # Its edges' points move when an edge is fitted without a camera.
+                rows, snap = snapped
+                jack[f.id] = replica_planes(Pf[keep], wk, gk, rows[sel[keep]], snap, fit.params["normal"],
+                                            min_points=MIN_POINTS["plane"])
         fitted[f.id] = (fit, Pf[keep])
     out = []
-    jack: dict[str, dict[Any, Any]] = {}  # each plane's leave-one-camera-out planes, made once
     for c in characteristics:
         out.append(_one(c, by_id, fitted, max_u_fraction, slice_mm, u_surface_mm, groups_of, jack))
     return out
+
+
+def _snapped(P: np.ndarray, w: np.ndarray, g: np.ndarray | None, owner: np.ndarray, origins: np.ndarray,
+             edges: Sequence[Any], used: Sequence[Feature], band_mm: float,
+             nearest: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray,
+                                      tuple[np.ndarray, EdgeSnap] | None]:
+    """The points near the used planes' edges moved onto them; each such point given to its
+    edge's first used plane, and a copy of it to the second (a point on an edge lies on both);
+    the edges' other points left out (:attr:`~inspector.characteristics.edges.EdgeSnap.dropped`).
+    A moved point's weight is 1: its place no longer depends on its segment's length.
+
+    Returns the points, weights, groups and owners, and, when groups are known, each point's
+    position among the moved ones (-1: not moved) with the snap."""
+    pos = {f.id: k for k, f in enumerate(used)}
+    mine = [e for e in edges if e.a in pos or e.b in pos]
+    if not mine:
+        return P, w, g, owner, None
+    snap = snap_to_edges(P, origins, mine, band_mm, groups=g, nearest=nearest)
+    if not len(snap.index):
+        return P, w, g, owner, None
+    P, w, owner = P.copy(), w.copy(), owner.copy()
+    owner[snap.dropped] = -1  # on an edge, represented by its moved points
+    P[snap.index] = snap.points
+    w[snap.index] = 1.0
+    # Each point's edge's two planes' positions among the used features (-1: not used).
+    ka, kb = (np.array([pos.get(pair[i], -1) for pair in snap.pairs], np.int64)[snap.edge] for i in (0, 1))
+    owner[snap.index] = np.where(ka >= 0, ka, kb)
+    both = (ka >= 0) & (kb >= 0)
+    twin = snap.index[both]
+    P = np.concatenate([P, P[twin]])
+    w = np.concatenate([w, w[twin]])
+    owner = np.concatenate([owner, kb[both]])
+    if g is None:
+        return P, w, g, owner, None
+    g = np.concatenate([g, g[twin]])
+    rows = np.full(len(P), -1, np.int64)
+    rows[snap.index] = np.arange(len(snap.index))
+    rows[len(P) - len(twin):] = np.flatnonzero(both)
+    return P, w, g, owner, (rows, snap)
 
 
 #: Plane characteristics whose u the camera jackknife checks (:func:`_jackknife_u`).

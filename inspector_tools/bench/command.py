@@ -168,6 +168,9 @@ def add_parser(subparsers: Any) -> None:
                    help="with --characteristics: points of the part (default 15000)")
     b.add_argument("--characteristics-runs", type=int, default=20, metavar="N",
                    help="with --characteristics: timed runs after a warm-up (default 20)")
+    b.add_argument("--characteristics-cameras", type=int, default=16, metavar="N",
+                   help="with --characteristics: also time the BCPS points of a simulated N-camera capture of the "
+                        "bracket (rays, edges snapped; default 16, 0: not)")
 
 
 def run(args: argparse.Namespace) -> int:
