@@ -298,27 +298,28 @@ def _moved(got: dict[str, Any]) -> int:
     return int(len(snap_to_edges(got["points"], got["origins"], got["edges"], 0.5, groups=got["groups"]).index))
 
 
+def _print_times(d: dict[str, Any], load: str) -> None:
+    """The verdicts and the CPU and wall times of one workload's figures ``d``."""
+    v = d["verdicts"]
+    print(f"    verdicts: {v['ok']} ok, {v['nok']} nok, {v['not_measurable']} not measurable")
+    for key, label in (("cpu_ms", "CPU ms "), ("wall_ms", "wall ms")):
+        s = d[key]
+        print(f"    {label}: median {s['median']:7.1f}  min {s['min']:7.1f}  max {s['max']:7.1f}   ({load})")
+
+
 def print_characteristics(doc: dict[str, Any]) -> None:
     """Print the figures of :func:`bench_characteristics` (``doc``, with ``machine``)."""
     ld, cpus = doc["load"], (doc.get("machine") or {}).get("usable_cpus")
     load = (f"load {ld['start']} -> {ld['end']}" if ld["start"] is not None else "load n/a") + (
         f" on {cpus} CPUs" if cpus else "")
-    v = doc["verdicts"]
     print(f"\n  characteristics: measure() of {doc['characteristics']} characteristics of the bracket, "
           f"{doc['points']} points, {doc['runs']} runs after a warm-up ({doc['warmup_ms']:.0f} ms)")
-    print(f"    verdicts: {v['ok']} ok, {v['nok']} nok, {v['not_measurable']} not measurable")
-    for key, label in (("cpu_ms", "CPU ms "), ("wall_ms", "wall ms")):
-        s = doc[key]
-        print(f"    {label}: median {s['median']:7.1f}  min {s['min']:7.1f}  max {s['max']:7.1f}   ({load})")
+    _print_times(doc, load)
     c = doc.get("capture")
     if c:
-        vc = c["verdicts"]
         print(f"\n  on the BCPS points of a simulated {c['cameras']}-camera capture of the bracket: {c['points']} points, "
               f"{c['moved']} moved onto edges")
-        print(f"    verdicts: {vc['ok']} ok, {vc['nok']} nok, {vc['not_measurable']} not measurable")
-        for key, label in (("cpu_ms", "CPU ms "), ("wall_ms", "wall ms")):
-            s = c[key]
-            print(f"    {label}: median {s['median']:7.1f}  min {s['min']:7.1f}  max {s['max']:7.1f}   ({load})")
+        _print_times(c, load)
     worst = max(doc["cpu_ms"]["median"], c["cpu_ms"]["median"] if c else 0.0)
     print(f"    target: CPU median <= {doc['target_ms']:g} ms (issue 28; CPU time is the figure to read on a shared "
           f"machine): {'MET' if doc['met'] else 'NOT MET'} ({worst:.1f} ms, the slower workload; {load})")
