@@ -202,3 +202,15 @@ def test_snapped_thickness_uncertainty_covers_the_truth(cube):
     z = np.abs(np.asarray(z))
     assert 0.9 <= float(np.mean(z <= 2.0)) <= 1.0, np.mean(z <= 2.0)
     assert np.median(z) > 0.25, np.median(z)
+
+
+def test_snapped_without_cameras_and_a_part_without_plane_edges(cube):
+    """Without the points' cameras (``per_camera = false``) the points still move onto the
+    edges (no jackknife to refit them for); a reference without two planes meeting at a
+    convex edge has no edge, and its measurement is the points' own."""
+    ref, feats, chars, edges = cube
+    P, cams, O = _cube_rig_points(np.random.default_rng(14), 0.0)
+    for r in measure(chars, feats, P, None, ref, origins=O, edges=edges):
+        assert r.verdict == "ok" and abs(r.measured - 30.0) < 0.001, r
+    ball = Reference.from_mesh("builtin:sphere30", make_part("sphere30"))
+    assert plane_edges(ball.vertices, ball.faces, find_features(ball.vertices, ball.faces)) == ()
