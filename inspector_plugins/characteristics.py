@@ -74,7 +74,7 @@ class CharacteristicsParams:
 
 def rows(ctx: InspectionContext, p: CharacteristicsParams) -> list[dict[str, Any]]:
     """The characteristics of ``ctx``'s part, as ``result.json`` rows (see the module)."""
-    from inspector.characteristics.definitions import SETTINGS_KEY, edges_for, features_for
+    from inspector.characteristics.definitions import SETTINGS_KEY, features_and_edges
     from inspector.characteristics.measure import measure
 
     chars = tuple(ctx.settings.get(SETTINGS_KEY, ()))
@@ -83,7 +83,7 @@ def rows(ctx: InspectionContext, p: CharacteristicsParams) -> list[dict[str, Any
     sel = ctx.need("bcps", "characteristics")
     pose = ctx.need("alignment", "characteristics").pose
     ref = ctx.need("reference", "characteristics")
-    feats = features_for(ref.vertices, ref.faces)
+    feats, ref_edges = features_and_edges(ref.vertices, ref.faces)
     local = ref.to_reference_frame(sel.points, pose)
     weights = None
     fp = ctx.capture.rig.footprint_mm() if len(ctx.capture.rig) else None
@@ -95,7 +95,7 @@ def rows(ctx: InspectionContext, p: CharacteristicsParams) -> list[dict[str, Any
     if p.snap_edges and len(sel.camera) == len(local) and len(ctx.capture.rig):
         centres = np.stack([cam.centre for cam in ctx.capture.rig])
         origins = ref.to_reference_frame(centres, pose)[np.asarray(sel.camera, np.int64)]
-        edges = edges_for(ref.vertices, ref.faces)
+        edges = ref_edges
     results = measure(chars, feats, local, weights, ref, band_mm=p.band_mm, max_u_fraction=p.max_u_fraction,
                       u_surface_mm=u_surface, groups=groups, origins=origins, edges=edges)
     out = []

@@ -30,7 +30,7 @@ from __future__ import annotations
 import hashlib
 import threading
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -41,15 +41,16 @@ from inspector.errors import InspectorError, RecipeError
 from inspector.kernels.features import find_features
 from inspector.reference import Reference
 
-__all__ = ["SETTINGS_KEY", "features_for", "features_of_reference", "measured_in", "parse_characteristics", "rows_of"]
+__all__ = ["SETTINGS_KEY", "features_and_edges", "features_for", "features_of_reference", "measured_in", "parse_characteristics", "rows_of"]
 
 #: The key under which the recipe's characteristics reach the stages (``context.settings``):
 #: the name of the plugin that measures them.
 SETTINGS_KEY = "characteristics"
 
-#: Meshes whose features are kept (a cell runs one reference; a GUI may switch between a few).
-_CACHE_SIZE = 8
-_cache: OrderedDict[str, Any] = OrderedDict()  # features (a list) and edges (a tuple) by mesh digest
+#: Meshes whose features and edges are kept (a cell runs one reference; a GUI may switch
+#: between a few): two entries a mesh.
+_CACHE_SIZE = 16
+_cache: OrderedDict[str, Any] = OrderedDict()
 _lock = threading.Lock()
 
 
@@ -59,6 +60,20 @@ def _digest(vertices: np.ndarray, faces: np.ndarray) -> str:
         h.update(str(a.shape).encode())
         h.update(a.tobytes())
     return h.hexdigest()
+
+
+def _cached(key: str, make: Callable[[], Any]) -> Any:
+    """``make()``, once per ``key`` and process (the least recently used dropped first)."""
+    with _lock:
+        if key in _cache:
+            _cache.move_to_end(key)
+            return _cache[key]
+    value = make()
+    with _lock:
+        _cache[key] = value
+        while len(_cache) > _CACHE_SIZE:
+            _cache.popitem(last=False)
+    return value
 
 
 def features_for(vertices: np.ndarray, faces: np.ndarray) -> list[Any]:
@@ -76,33 +91,23 @@ def features_for(vertices: np.ndarray, faces: np.ndarray) -> list[Any]:
     list of Feature
         Shared: do not modify.
     """
+    return _cached("features:" + _digest(vertices, faces), lambda: find_features(vertices, faces))
+
+
+def features_and_edges(vertices: np.ndarray, faces: np.ndarray) -> tuple[list[Any], tuple[Any, ...]]:
+    """The features of a mesh (:func:`features_for`) and the convex edges between its plane
+    features (:func:`inspector.characteristics.edges.plane_edges`), found once per mesh and
+    process; the mesh is hashed once (the stage asks for both on every part).
+
+    Returns
+    -------
+    features : list of Feature
+    edges : tuple of PlaneEdge
+        Both shared: do not modify.
+    """
     key = _digest(vertices, faces)
-    with _lock:
-        if key in _cache:
-            _cache.move_to_end(key)
-            return _cache[key]
-    feats = find_features(vertices, faces)
-    with _lock:
-        _cache[key] = feats
-        while len(_cache) > _CACHE_SIZE:
-            _cache.popitem(last=False)
-    return feats
-
-
-def edges_for(vertices: np.ndarray, faces: np.ndarray) -> tuple[Any, ...]:
-    """The convex edges between the plane features of a mesh
-    (:func:`inspector.characteristics.edges.plane_edges`), found once per mesh and process."""
-    key = "edges:" + _digest(vertices, faces)
-    with _lock:
-        if key in _cache:
-            _cache.move_to_end(key)
-            return _cache[key]
-    edges = plane_edges(vertices, faces, features_for(vertices, faces))
-    with _lock:
-        _cache[key] = edges
-        while len(_cache) > _CACHE_SIZE:
-            _cache.popitem(last=False)
-    return edges
+    feats = _cached("features:" + key, lambda: find_features(vertices, faces))
+    return feats, _cached("edges:" + key, lambda: plane_edges(vertices, faces, feats))
 
 
 def features_of_reference(spec: str) -> list[Any]:

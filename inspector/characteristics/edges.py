@@ -3,11 +3,11 @@
 :func:`plane_edges` finds, once per reference, every convex edge where two plane features
 meet (the line where their nominal planes cross, and the stretches of it the mesh's shared
 triangle edges cover). :func:`snap_to_edges` takes one part's BCPS points near each such
-edge, fits the edge to their contour rays (:func:`inspector.kernels.edges.fit_line_to_rays`)
+edge, fits the edge to their contour rays (:func:`inspector.kernels.edges.fit_lines_to_rays`)
 and moves each point along its ray to where the ray grazes the fitted edge: a point there
 lies on both planes, so it belongs to both. Why: a silhouette shows a plane only along its
 edges, and the visual hull places those points up to tens of microns outside the face
-(``docs/characteristics.md``, "Why the cube misses"); the rays themselves are exact.
+(``docs/characteristics.md``, "Why the cube missed"); the rays themselves are exact.
 
 Concave edges are left alone (no contour ray touches one), and so are the ends of each edge
 (a ray there may graze the neighbouring edge or the corner).
@@ -23,6 +23,7 @@ import numpy as np
 
 from inspector.kernels.edges import RayLines, closest_on_rays, fit_lines_to_rays, line_ray_distances, lines_jackknife
 from inspector.kernels.features import Feature, mesh_topology
+from inspector.kernels.fits import group_moments, planes_without
 
 __all__ = ["EdgeSnap", "PlaneEdge", "plane_edges", "replica_planes", "snap_to_edges"]
 
@@ -62,7 +63,7 @@ class PlaneEdge:
     point: np.ndarray
     direction: np.ndarray
     spans: np.ndarray
-    positions: tuple[int, int] = (-1, -1)
+    positions: tuple[int, int]
 
 
 def plane_edges(vertices: np.ndarray, faces: np.ndarray, features: Sequence[Feature]) -> tuple[PlaneEdge, ...]:
@@ -143,8 +144,6 @@ class EdgeSnap:
         Where to, mm.
     pairs : tuple of (str, str)
         The two features' ids of each fitted edge (``edge`` indexes it).
-    edges : int
-        How many edges were fitted.
     edge : (K,) int
         Which fitted edge (position in ``lines``) each moved point is on.
     along : (K,) float
@@ -153,7 +152,7 @@ class EdgeSnap:
         The fitted edges.
     jackknife : tuple of dict
         Per fitted edge: camera -> the line fitted without that camera's rays, or None when
-        the other cameras do not fix it (:func:`inspector.kernels.edges.line_jackknife`;
+        the other cameras do not fix it (:func:`inspector.kernels.edges.lines_jackknife`;
         empty without groups). A camera not in the dict gave the edge no ray.
     dropped : (D,) int
         The points of a fitted edge that were not moved: the moved points of that edge
@@ -163,12 +162,16 @@ class EdgeSnap:
     index: np.ndarray
     points: np.ndarray
     pairs: tuple[tuple[str, str], ...]
-    edges: int
     edge: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
     along: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
     lines: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
     jackknife: tuple[dict[object, tuple[np.ndarray, np.ndarray] | None], ...] = ()
     dropped: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0, np.int64))
+
+    @property
+    def edges(self) -> int:
+        """How many edges were fitted."""
+        return len(self.pairs)
 
 
 def snap_to_edges(points: np.ndarray, origins: np.ndarray, edges: Sequence[PlaneEdge], band_mm: float, *,
@@ -208,7 +211,7 @@ def snap_to_edges(points: np.ndarray, origins: np.ndarray, edges: Sequence[Plane
     sets = [(k, idx) for k, idx in sets
             if len(idx) >= MIN_RAYS and (groups is None or groups[idx].min() != groups[idx].max())]
     if not sets:
-        return EdgeSnap(np.zeros(0, np.int64), np.zeros((0, 3)), (), 0)
+        return EdgeSnap(np.zeros(0, np.int64), np.zeros((0, 3)), ())
     mine = [edges[k] for k, _ in sets]
     every = np.concatenate([idx for _, idx in sets])
     every_li = np.concatenate([np.full(len(idx), j) for j, (_, idx) in enumerate(sets)])
@@ -239,7 +242,7 @@ def snap_to_edges(points: np.ndarray, origins: np.ndarray, edges: Sequence[Plane
         jacks = tuple({label: ((Ck[j, g], Uk[j, g]) if fixed[j, g] else None)
                        for g, label in enumerate(labels.tolist()) if present[j, g]} for j in np.flatnonzero(good))
     along = np.einsum("ij,ij->i", Q[ok] - lines.point[li[ok]], lines.direction[li[ok]])
-    return EdgeSnap(ray[ok], Q[ok], tuple((e.a, e.b) for e, g in zip(mine, good) if g), int(good.sum()), slot[li[ok]],
+    return EdgeSnap(ray[ok], Q[ok], tuple((e.a, e.b) for e, g in zip(mine, good) if g), slot[li[ok]],
                     along, tuple((lines.point[j], lines.direction[j]) for j in np.flatnonzero(good)), jacks, dropped)
 
 
@@ -353,30 +356,19 @@ def replica_planes(points: np.ndarray, weights: np.ndarray, groups: np.ndarray, 
     P = np.asarray(points, float)
     w = np.asarray(weights, float)
     labels, gi = np.unique(np.asarray(groups), return_inverse=True)
+    gi = gi.ravel()
     G = len(labels)
     c0 = (w[:, None] * P).sum(0) / max(float(w.sum()), 1e-300)
     m = moved >= 0
-    # The points that never move: their moments (about c0) per camera.
-    fx = ~m
-    d, wf, gf = P[fx] - c0, w[fx], gi[fx]
-    # (bincount of nothing is an integer array: the sums are made float)
-    W = np.bincount(gf, weights=wf, minlength=G).astype(float)
-    S = np.stack([np.bincount(gf, weights=wf * d[:, i], minlength=G) for i in range(3)], axis=1).astype(float)
-    M = np.empty((G, 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            M[:, i, j] = M[:, j, i] = np.bincount(gf, weights=wf * d[:, i] * d[:, j], minlength=G)
-    n = np.bincount(gf, minlength=G)
-    Wk = W.sum() - W
-    Sk = S.sum(0) - S
-    Mk = M.sum(0) - M
-    nk = n.sum() - n
+    # The points that never move: their moments without each camera.
+    W, S, M, n = group_moments(P[~m] - c0, w[~m], gi[~m], G)
+    Wk, Sk, Mk, nk = W.sum() - W, S.sum(0) - S, M.sum(0) - M, n.sum() - n
     pos, eg = moved[m], snap.edge[moved[m]]
     for e in np.unique(eg):
         on = eg == e
         t, we, ge = snap.along[pos[on]], w[m][on], gi[m][on]
         # Count, sum and sum of squares of the positions along the edge, without each camera.
-        sums = [np.bincount(ge, weights=we * t ** p, minlength=G) for p in range(3)]
+        sums = [np.bincount(ge, weights=we * t ** power, minlength=G) for power in range(3)]
         s0, s1, s2 = (x.sum() - x for x in sums)
         ne = int(on.sum()) - np.bincount(ge, minlength=G)
         jk = snap.jackknife[e]
@@ -394,12 +386,4 @@ def replica_planes(points: np.ndarray, weights: np.ndarray, groups: np.ndarray, 
         Mk += (s0[:, None, None] * p[:, :, None] * p[:, None, :] + s1[:, None, None] * (pu + pu.transpose(0, 2, 1))
                + s2[:, None, None] * u[:, :, None] * u[:, None, :])
         nk += ne
-    ok = (nk >= min_points) & (Wk > 0)
-    Wd = np.where(ok, Wk, 1.0)
-    mean = Sk / Wd[:, None]
-    C = Mk / Wd[:, None, None] - mean[:, :, None] * mean[:, None, :]
-    C[~ok] = np.eye(3)
-    nrm = np.linalg.eigh(C)[1][:, :, 0]
-    nrm *= np.where(nrm @ np.asarray(normal, float) >= 0, 1.0, -1.0)[:, None]
-    return {label: ({"kind": "plane", "point": c0 + mean[k], "normal": nrm[k]} if ok[k] else None)
-            for k, label in enumerate(labels.tolist())}
+    return planes_without(Wk, Sk, Mk, nk, labels, c0, normal, min_points=min_points)

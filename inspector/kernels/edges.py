@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RayLine", "RayLines", "closest_on_rays", "fit_line_to_rays", "fit_lines_to_rays", "line_jackknife",
-           "line_ray_distances", "lines_jackknife"]
+__all__ = ["RayLine", "RayLines", "closest_on_rays", "fit_line_to_rays", "fit_lines_to_rays", "line_ray_distances",
+           "lines_jackknife"]
 
 #: The normal matrix's smallest to largest eigenvalue below this: the rays do not fix the
 #: line (one camera's rays all lie in one plane, and every line of that plane meets them).
@@ -289,34 +289,6 @@ def lines_jackknife(origins: np.ndarray, directions: np.ndarray, line: np.ndarra
     Uk = U[:, None] + step[..., 2:3] * E1[:, None] + step[..., 3:4] * E2[:, None]
     Uk /= np.linalg.norm(Uk, axis=2)[..., None]
     return labels, Ck, Uk, fixed, count > 0
-
-
-def line_jackknife(origins: np.ndarray, directions: np.ndarray, groups: np.ndarray, point: np.ndarray,
-                   direction: np.ndarray, weights: np.ndarray | None = None) -> dict[object, tuple[np.ndarray, np.ndarray] | None]:
-    """One line fitted without each group of rays in turn (:func:`lines_jackknife` for a
-    single line).
-
-    Parameters
-    ----------
-    origins, directions : (N, 3) float
-        The rays (directions unit), mm.
-    groups : (N,)
-        Each ray's group (the camera that gave it).
-    point, direction : (3,) float
-        The line fitted to all the rays (:func:`fit_line_to_rays`).
-    weights : (N,) float, optional
-
-    Returns
-    -------
-    dict
-        Group label -> ``(point, direction)`` of the line without that group's rays, or None
-        when the other rays do not fix the line.
-    """
-    O = np.asarray(origins, float).reshape(-1, 3)
-    one = RayLines(np.asarray(point, float)[None], np.asarray(direction, float)[None], np.zeros(1), np.ones(1, bool),
-                   np.zeros((1, 4, 4)))
-    labels, Ck, Uk, fixed, _ = lines_jackknife(O, directions, np.zeros(len(O), np.int64), groups, one, weights)
-    return {label: ((Ck[0, k], Uk[0, k]) if fixed[0, k] else None) for k, label in enumerate(labels.tolist())}
 
 
 def line_ray_distances(point: np.ndarray, direction: np.ndarray, origins: np.ndarray,

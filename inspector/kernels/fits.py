@@ -56,6 +56,7 @@ __all__ = [
     "direction_of",
     "distance_between",
     "geometric_distance",
+    "group_moments",
     "fit_circle",
     "fit_cone",
     "fit_cylinder",
@@ -68,6 +69,7 @@ __all__ = [
     "grouped",
     "geometric_angle",
     "plane_jackknife",
+    "planes_without",
     "flatness",
     "orthonormal_basis",
     "propagate",
@@ -1117,29 +1119,80 @@ def plane_jackknife(points: np.ndarray, weights: np.ndarray | None, groups: np.n
     if w.shape != (len(P),) or g.shape != (len(P),):
         raise FitError(f"weights and groups must be ({len(P)},), got {w.shape}, {g.shape}")
     labels, idx = np.unique(g, return_inverse=True)
-    G = len(labels)
     c0 = (w[:, None] * P).sum(0) / max(float(w.sum()), 1e-300)
-    d = P - c0  # moments about the centroid: no cancellation for a part far from the origin
-    count = np.bincount(idx, minlength=G)
-    W = np.bincount(idx, weights=w, minlength=G)
-    S = np.stack([np.bincount(idx, weights=w * d[:, i], minlength=G) for i in range(3)], axis=1)
-    M = np.empty((G, 3, 3))
+    W, S, M, count = group_moments(P - c0, w, idx.ravel(), len(labels))
+    return planes_without(W.sum() - W, S.sum(0) - S, M.sum(0) - M, len(P) - count, labels, c0, normal,
+                          min_points=min_points)
+
+
+def group_moments(d: np.ndarray, w: np.ndarray, group: np.ndarray,
+                  count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each group's weighted moments of points (one pass over them).
+
+    Parameters
+    ----------
+    d : (N, 3) float
+        The points about a common origin (a centroid: no cancellation far from the origin), mm.
+    w : (N,) float
+        Weights.
+    group : (N,) int
+        Each point's group, in ``[0, count)``.
+    count : int
+
+    Returns
+    -------
+    W : (count,) float
+        Sum of weights.
+    S : (count, 3) float
+        Weighted sum of ``d``.
+    M : (count, 3, 3) float
+        Weighted sum of ``d d^T``.
+    n : (count,) int
+        Points.
+    """
+    # (bincount of nothing is an integer array: the sums are made float)
+    W = np.bincount(group, weights=w, minlength=count).astype(float)
+    S = np.stack([np.bincount(group, weights=w * d[:, i], minlength=count) for i in range(3)], axis=1).astype(float)
+    M = np.empty((count, 3, 3))
     for i in range(3):
         for j in range(i, 3):
-            M[:, i, j] = M[:, j, i] = np.bincount(idx, weights=w * d[:, i] * d[:, j], minlength=G)
-    # Every leave-one-out scatter at once, and one batched eigen-decomposition of the stack.
-    Wk = W.sum() - W
-    ok = (len(P) - count >= min_points) & (Wk > 0)
-    Wd = np.where(ok, Wk, 1.0)
-    mean = (S.sum(0) - S) / Wd[:, None]
-    C = (M.sum(0) - M) / Wd[:, None, None] - mean[:, :, None] * mean[:, None, :]
+            M[:, i, j] = M[:, j, i] = np.bincount(group, weights=w * d[:, i] * d[:, j], minlength=count)
+    return W, S, M, np.bincount(group, minlength=count)
+
+
+def planes_without(W: np.ndarray, S: np.ndarray, M: np.ndarray, n: np.ndarray, labels: np.ndarray,
+                   c0: np.ndarray, normal: np.ndarray, *, min_points: int = 10) -> dict[Any, dict[str, Any] | None]:
+    """The least-squares planes of point sets given by their moments (each set: the points
+    without one group), in one batched eigen-decomposition.
+
+    Parameters
+    ----------
+    W, S, M, n : (G,), (G, 3), (G, 3, 3), (G,)
+        Each set's weight, first and second moments about ``c0``, and point count
+        (:func:`group_moments`, totals less one group's).
+    labels : (G,)
+        Each set's label (the group left out).
+    c0 : (3,) float
+        The origin of the moments, mm.
+    normal : (3,) float
+        The side each plane's normal is turned to.
+    min_points : int
+        A set with fewer points gets None.
+
+    Returns
+    -------
+    dict
+        Label -> ``{"kind": "plane", "point", "normal"}`` (:func:`fit_plane`'s geometry), or None.
+    """
+    ok = (n >= min_points) & (W > 0)
+    Wd = np.where(ok, W, 1.0)
+    mean = S / Wd[:, None]
+    C = M / Wd[:, None, None] - mean[:, :, None] * mean[:, None, :]
     C[~ok] = np.eye(3)
     nrm = np.linalg.eigh(C)[1][:, :, 0]
     nrm *= np.where(nrm @ np.asarray(normal, float) >= 0, 1.0, -1.0)[:, None]
-    out: dict[Any, dict[str, Any] | None] = {}
-    for k, label in enumerate(labels.tolist()):
-        out[label] = {"kind": "plane", "point": c0 + mean[k], "normal": nrm[k]} if ok[k] else None
-    return out
+    return {label: ({"kind": "plane", "point": c0 + mean[k], "normal": nrm[k]} if ok[k] else None)
+            for k, label in enumerate(np.asarray(labels).tolist())}
 
 
 def _point_of(geo: dict[str, Any]) -> np.ndarray:

@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from inspector.characteristics.definitions import edges_for, features_for
+from inspector.characteristics.definitions import features_and_edges
 from inspector.characteristics.edges import snap_to_edges
 from inspector.characteristics.measure import Characteristic, measure
 from inspector.errors import InspectorError, RecipeError
@@ -193,10 +193,11 @@ def capture_workload(folder: Path, cameras: int = 16, seed: int = 3) -> dict[str
     assert ref is not None  # Session.open with a reference
     cam = np.asarray(res.bcps.camera, np.int64)
     centres = np.stack([c.centre for c in res.rig])
-    return {"reference": ref, "features": features_for(ref.vertices, ref.faces),
+    feats, edges = features_and_edges(ref.vertices, ref.faces)
+    return {"reference": ref, "features": feats,
             "points": ref.to_reference_frame(res.bcps.points, res.pose), "groups": cam,
             "weights": confidence(res.bcps.segment_mm, res.rig.footprint_mm()),
-            "origins": ref.to_reference_frame(centres, res.pose)[cam], "edges": edges_for(ref.vertices, ref.faces)}
+            "origins": ref.to_reference_frame(centres, res.pose)[cam], "edges": edges}
 
 
 def _timed(call: Callable[[], Any], runs: int) -> tuple[Any, float, list[float], list[float]]:
