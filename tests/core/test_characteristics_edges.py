@@ -10,7 +10,13 @@ from scipy.optimize import least_squares
 
 from inspector.characteristics.edges import FIT_RAYS, plane_edges, snap_to_edges
 from inspector.characteristics.measure import Characteristic, measure
-from inspector.kernels.edges import closest_on_rays, fit_line_to_rays, line_ray_distances
+from inspector.kernels.edges import (
+    closest_on_rays,
+    fit_line_to_rays,
+    fit_lines_to_rays,
+    line_ray_distances,
+    lines_jackknife,
+)
 from inspector.kernels.features import find_features
 from inspector.parts import make_part
 from inspector.reference import Reference
@@ -65,6 +71,37 @@ def test_line_from_rays_matches_scipy_least_squares():
     assert np.abs(np.linalg.norm(np.cross(w, D), axis=1)).max() < 1e-9
     off = Q - p0
     assert np.median(np.linalg.norm(off - (off @ u0)[:, None] * u0, axis=1)) < 0.005
+
+
+def test_lines_fitted_together_and_without_each_camera():
+    """Several lines fitted at once equal each fitted alone; each line's jackknife replica
+    (one Gauss-Newton step without a camera's rays) equals that line refitted without them;
+    a line two cameras show is not fixed without either of them."""
+    rng = np.random.default_rng(9)
+    lines = [(np.array([0.0, 15.0, 15.0]), np.array([1.0, 0.0, 0.0])),
+             (np.array([15.0, 0.0, -15.0]), np.array([0.0, 1.0, 0.0]))]
+    centres = [rng.normal(size=(4, 3)) * 300, rng.normal(size=(2, 3)) * 300]
+    O, D, li, cam = [], [], [], []
+    for j, ((p0, u0), cs) in enumerate(zip(lines, centres)):
+        for k, c in enumerate(cs):
+            o, d = _rays_at(p0, u0, [c], 80, rng, noise_mm=0.003)
+            O.append(o), D.append(d), li.append(np.full(80, j)), cam.append(np.full(80, k))
+    O, D, li, cam = (np.concatenate(x) for x in (O, D, li, cam))
+    starts = np.array([p0 + 0.3 for p0, _ in lines]), np.array([u0 + 0.02 for _, u0 in lines])
+    both = fit_lines_to_rays(O, D, li, *starts)
+    for j in range(2):
+        alone = fit_line_to_rays(O[li == j], D[li == j], point=starts[0][j], direction=starts[1][j])
+        assert np.allclose(both.point[j], alone.point, atol=1e-9)
+        assert np.allclose(both.direction[j], alone.direction, atol=1e-12)
+    labels, Ck, Uk, fixed, present = lines_jackknife(O, D, li, cam, both)
+    assert present[0].all() and present[1].tolist() == [True, True, False, False]
+    for g, label in enumerate(labels.tolist()):
+        out = (li == 0) & (cam != label)
+        refit = fit_line_to_rays(O[out], D[out], point=both.point[0], direction=both.direction[0])
+        d = Ck[0, g] - refit.point
+        assert np.linalg.norm(d - (d @ refit.direction) * refit.direction) < 1e-6  # mm; the camera moves it 50-1000 nm
+        assert abs(abs(float(Uk[0, g] @ refit.direction)) - 1.0) < 1e-9
+    assert fixed[0].all() and not fixed[1, :2].any()
 
 
 def test_rays_of_one_camera_do_not_fix_a_line():
