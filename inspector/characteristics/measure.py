@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from inspector.characteristics.edges import EdgeSnap, replica_planes, snap_to_edges
+from inspector.characteristics.edges import EdgeSnap, PlaneEdge, replica_planes, snap_to_edges
 from inspector.errors import RecipeError
 from inspector.kernels import fits
 from inspector.kernels.features import Feature
@@ -380,7 +380,7 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
             weights: np.ndarray | None, reference: Any, *, band_mm: float = 0.5, max_u_fraction: float = 0.5,
             slice_mm: float | None = None, u_surface_mm: float = 0.0,
             groups: np.ndarray | None = None, origins: np.ndarray | None = None,
-            edges: Sequence[Any] = ()) -> list[CharacteristicResult]:
+            edges: Sequence[PlaneEdge] = ()) -> list[CharacteristicResult]:
     """Measure characteristics from one inspection's points.
 
     Parameters
@@ -474,8 +474,8 @@ def measure(characteristics: Sequence[Characteristic], features: Sequence[Featur
 
 
 def _snapped(P: np.ndarray, w: np.ndarray, g: np.ndarray | None, owner: np.ndarray, origins: np.ndarray,
-             edges: Sequence[Any], used: Sequence[Feature], band_mm: float,
-             nearest: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray,
+             edges: Sequence[PlaneEdge], used: Sequence[Feature], band_mm: float,
+             nearest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray,
                                       tuple[np.ndarray, EdgeSnap] | None]:
     """The points near the used planes' edges moved onto them; each such point given to its
     edge's first used plane, and a copy of it to the second (a point on an edge lies on both);
