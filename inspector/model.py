@@ -355,7 +355,8 @@ class BcpsPoints:
     pixel : (N, 2) float
         Contour point ``(u, v)`` the ray went through.
     segment_mm : (N,) float
-        Length of the candidate segment on that ray, mm.
+        Length of the candidate segment on that ray, mm (NaN in a selection that only
+        fed the pose search, which does not measure it).
     method : str
         ``"ray"`` or ``"surface"``.
     size : SizePrior or None

@@ -136,7 +136,7 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
     """Run the ``ray`` method on every camera for the reference placed at ``pose``.
 
     ``sparse``: every ``refine_stride``-th ray, one refinement level less (25 um steps): a
-    selection that only feeds a fit. With a ``prior`` the candidates are ranked by their
+    selection that only feeds a fit (its ``segment_mm`` NaN: not measured). With a ``prior`` the candidates are ranked by their
     signed distance to the sized reference; the deviations returned are against the nominal
     one placed on the part (:meth:`SizePrior.rigid`).
     """
@@ -162,7 +162,7 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
         pts, dev, seg, ok = bk.select_on_rays(
             origin, dirs[sub], views, i, sd_fn, bounds, stack=stack, step_mm=p.step_mm, refine_levels=levels,
             tolerance_px=p.tolerance_px, accept_px=accept, violation_weight=p.violation_weight, t_range=(r0[sub], r1[sub]),
-            mesh=ref.distance if stack is not None else None, pose=place, sd_scale=prior.scale,
+            mesh=ref.distance if stack is not None else None, pose=place, sd_scale=prior.scale, segments=not sparse,
         )
         out["points"].append(pts[ok])
         out["deviation"].append(ref.signed_distance(pts[ok], nominal) if sized else dev[ok])

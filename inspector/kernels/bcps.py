@@ -329,7 +329,7 @@ def select_on_rays(
     *, step_mm: float = 0.25, refine_levels: int = 2, refine_samples: int = 11, tolerance_px: float = 0.05,
     accept_px: float = 1.0, violation_weight: float = 3.0, max_points: int = 1_000_000, stack: object | None = None,
     t_range: tuple[np.ndarray, np.ndarray] | None = None, mesh: object | None = None, pose: np.ndarray | None = None,
-    sd_scale: float = 1.0,
+    sd_scale: float = 1.0, segments: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """BCPS on exact rays (the ``ray`` method).
 
@@ -387,6 +387,9 @@ def select_on_rays(
         With ``mesh``: ``pose`` may be the affine placement of a scaled reference
         (:meth:`inspector.kernels.prior.SizePrior.placement`) whose signed distance is
         ``sd_scale * mesh(pose^-1 x)``; ``sd_fn`` must be that function.
+    segments : bool
+        False: no segment lengths (``segment_mm`` NaN); the compiled search then tests
+        only the coarse samples that can win (the same points).
 
     Returns
     -------
@@ -395,7 +398,8 @@ def select_on_rays(
     deviation : (M,) float
         Signed distance of the selected point, mm (NaN where none).
     segment_mm : (M,) float
-        Length of the ray's candidate set at the coarse tolerance, mm (0 where none).
+        Length of the ray's candidate set at the coarse tolerance, mm (0 where none; NaN
+        everywhere when not ``segments``).
     valid : (M,) bool
     """
     M = len(dirs)
@@ -414,9 +418,11 @@ def select_on_rays(
     s = _RaySearch(step_mm, refine_levels, refine_samples, tolerance_px, accept_px, violation_weight, max_points)
     if stack is not None and mesh is not None and pose is not None:
         _select_compiled(origin, dirs, views, skip, sd_fn, bounds, hit, t0, t1, lip, weight, s, stack, mesh, pose,
-                         sd_scale, out)
+                         sd_scale, out, segments)
     else:
         _select_sampled(origin, dirs, hit, t0, t1, hull, sd_fn, lip, weight, s, out)
+    if not segments:
+        out[2][:] = np.nan
     return out
 
 
@@ -441,6 +447,7 @@ def _select_compiled(
     origin: np.ndarray, dirs: np.ndarray, views: Sequence[View], skip: int, sd_fn: SignedDistance, bounds: np.ndarray,
     hit: np.ndarray, t0: np.ndarray, t1: np.ndarray, lip: float, weight: float, s: _RaySearch, stack: object,
     mesh: object, pose: np.ndarray, sd_scale: float, out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    segments: bool = True,
 ) -> None:
     """:func:`select_on_rays` by the compiled search (:func:`inspector.kernels.bcps_jit.select_rays`)
     on the rays ``hit``; the rays it flags (a distance outside the index's band) take the
@@ -463,7 +470,7 @@ def _select_compiled(
     tb, vb, sb, seg, oob = bcps_jit.select_rays(
         origin, dirs[hit], t0[hit], t1[hit], stack, skip, mesh, pose, step_mm=s.step_mm,
         refine_levels=s.refine_levels, refine_samples=s.refine_samples, tolerance_px=s.tolerance_px,
-        accept_px=s.accept_px, weight=weight, lip=lip, bounds=bounds, sd_scale=sd_scale,
+        accept_px=s.accept_px, weight=weight, lip=lip, bounds=bounds, sd_scale=sd_scale, segments=segments,
     )
     ok = ~oob & (vb <= s.accept_px) & np.isfinite(sb)
     sel = hit[ok]

@@ -95,15 +95,67 @@ def _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc):
     return sc * signed_at(px, py, pz, tri, pn, lo, h, dims, start, items, dc)
 
 
+@numba.njit(cache=True, inline="always")
+def _ray_speeds(origin, d0, d1, d2, ta, tb, K, R, t, lc):
+    """Per camera, a bound of how fast the map value changes along the ray over
+    ``[ta, tb]``, px per mm: ``lc`` (the rig-wide bound) where this ray's own is not lower.
+
+    With ``A + s B`` the ray in camera coordinates, its projection moves at
+    ``|K2 (B_xy A_z - A_xy B_z)| / Z(s)^2`` px per mm (the numerator is constant along the
+    ray), largest where the depth ``Z`` is least, at an end of the range. A ray nearly
+    along a camera's line of sight barely moves in its image: that camera's last value
+    then holds for many samples (issue 26: fewer projections, the same decisions).
+    """
+    C = K.shape[0]
+    out = np.empty(C)
+    o0 = origin[0]
+    o1 = origin[1]
+    o2 = origin[2]
+    for c in range(C):
+        out[c] = lc[c]
+        if not (lc[c] < np.inf):
+            continue  # lens distortion: never skipped
+        ax = R[c, 0, 0] * o0 + R[c, 0, 1] * o1 + R[c, 0, 2] * o2 + t[c, 0]
+        ay = R[c, 1, 0] * o0 + R[c, 1, 1] * o1 + R[c, 1, 2] * o2 + t[c, 1]
+        az = R[c, 2, 0] * o0 + R[c, 2, 1] * o1 + R[c, 2, 2] * o2 + t[c, 2]
+        bx = R[c, 0, 0] * d0 + R[c, 0, 1] * d1 + R[c, 0, 2] * d2
+        by = R[c, 1, 0] * d0 + R[c, 1, 1] * d1 + R[c, 1, 2] * d2
+        bz = R[c, 2, 0] * d0 + R[c, 2, 1] * d1 + R[c, 2, 2] * d2
+        z = min(az + ta * bz, az + tb * bz)
+        if not (z > 0.0):
+            continue
+        wx = bx * az - ax * bz
+        wy = by * az - ay * bz
+        ux = K[c, 0, 0] * wx + K[c, 0, 1] * wy
+        uy = K[c, 1, 1] * wy
+        out[c] = min(lc[c], MAP_LIPSCHITZ * math.sqrt(ux * ux + uy * uy) / (z * z))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _distances_along(origin, d0, d1, d2, a0, step, Ai, sc, tri, pn, lo, h, dims, start, items, dc, out):
+    """The signed distances of a ray's samples ``a0 + k * step`` into ``out`` (n,); False
+    at the first outside the index's band (NaN; the rest not computed). One call per ray:
+    not inlined, which keeps the kernel below quick to compile."""
+    for k in range(out.shape[0]):
+        tk = a0 + step * k
+        out[k] = _sd(origin[0] + tk * d0, origin[1] + tk * d1, origin[2] + tk * d2, Ai, sc, tri, pn, lo, h, dims,
+                     start, items, dc)
+        if np.isnan(out[k]):
+            return False
+    return True
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border, skip, lc,
                    tri, pn, lo, h, dims, start, items, dc, Ai, sc,
-                   step, levels, offsets, tol, accept, weight, lip,
+                   step, levels, offsets, tol, accept, weight, lip, segments,
                    t_out, v_out, s_out, seg_out, oob_out):
     M = dirs.shape[0]
     C = K.shape[0]
     nref = offsets.shape[0]
     half = (nref - 1) // 2
+    reach = (levels + 1) * step
     for r in numba.prange(M):
         t_out[r] = np.nan
         v_out[r] = np.inf
@@ -120,6 +172,8 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
         first = 0
         grec = np.empty(C)
         trec = np.full(C, np.nan)
+        # every sample of the ray lies within [a0, a1] widened by at most a step per level
+        lcr = _ray_speeds(origin, d0, d1, d2, a0 - reach, a1 + reach, K, R, t, lc)
         gs = np.empty(nref)  # a refinement level's distances, in the order tested
         gj = np.empty(nref, np.int64)  # and their grid indices
         eps = max(0.5 * lip * step, accept)
@@ -133,35 +187,66 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
         nfeas = 0
         oob = False
         n = int(math.ceil((a1 - a0) / step)) + 1
-        for k in range(n):
+        while n > 0 and a0 + step * (n - 1) > a1 + 1e-9:
+            n -= 1
+        # Without the segment's length (a selection that only feeds a fit), the coarse
+        # samples' distances come first and the hull tests go by increasing distance, from
+        # the nearest, until no untested sample can cost less than the best (a cost is its
+        # distance plus a penalty): the same best and deepest samples as the scan in index
+        # order, whose hull tests are mostly of samples that cannot win. A ray with a
+        # distance outside the index's band is scanned, which flags it where it must.
+        ordered = not segments
+        sv = np.empty(n if ordered else 0)
+        if ordered:
+            ordered = _distances_along(origin, d0, d1, d2, a0, step, Ai, sc, tri, pn, lo, h, dims, start, items, dc, sv)
+        bk = n
+        qk = n
+        for i in range(n):
+            if ordered:
+                # the nearest untested sample, the first in index among equals (few are
+                # tested: picking each in turn is cheaper than a sort)
+                k = -1
+                s = np.inf
+                for j in range(n):
+                    if sv[j] < s:
+                        s = sv[j]
+                        k = j
+                if k < 0 or s > bc:
+                    break
+                sv[k] = np.inf
+            else:
+                k = i
             tk = a0 + step * k
-            if tk > a1 + 1e-9:
-                break
             x0 = origin[0] + tk * d0
             x1 = origin[1] + tk * d1
             x2 = origin[2] + tk * d2
-            v, first = _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lc, grec, trec)
+            v, first = _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lcr, grec, trec)
             if v > eps:
                 continue
-            s = _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc)
-            if np.isnan(s):
-                oob = True
-                continue
-            nfeas += 1
+            if not ordered:
+                s = _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc)
+                if np.isnan(s):
+                    oob = True
+                    continue
+                nfeas += 1
             c = s + weight * max(v - tol, 0.0)
-            if c < bc:
+            if c < bc or (c == bc and k < bk):  # the least cost, the first in index among equals
                 bc = c
                 bt = tk
                 bv = v
                 bs = s
-            if s < qs:
+                bk = k
+            if s < qs or (s == qs and k < qk):  # the deepest admitted, likewise
                 qt = tk
                 qv = v
                 qs = s
+                qk = k
+        if ordered:
+            nfeas = -1
         # (the coarse and refinement loops repeat "sample -> hull -> distance" on purpose:
         # a shared helper is not inlinable by Numba with this many arguments, and an
         # out-of-line call per sample made the kernel 5x slower)
-        seg_out[r] = nfeas * step
+        seg_out[r] = nfeas * step if nfeas >= 0 else np.nan
         if oob:
             oob_out[r] = True
             continue
@@ -230,7 +315,7 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
                     x0 = origin[0] + tt * d0
                     x1 = origin[1] + tt * d1
                     x2 = origin[2] + tt * d2
-                    v, first = _violation(x0, x1, x2, tt, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lc, grec, trec)
+                    v, first = _violation(x0, x1, x2, tt, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lcr, grec, trec)
                     if v > eps:
                         continue
                     pen = weight * max(v - tol, 0.0)
@@ -298,7 +383,7 @@ def camera_speed(stack: CameraStack, bounds: np.ndarray) -> np.ndarray:
 
 
 def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refine_levels, refine_samples,
-                tolerance_px, accept_px, weight, lip, bounds, sd_scale=1.0):
+                tolerance_px, accept_px, weight, lip, bounds, sd_scale=1.0, segments=True):
     """Run the fused search on rays ``origin + t * dirs`` (M, 3) over ``[t0, t1]`` (M,).
 
     Parameters are those of :func:`inspector.kernels.bcps.select_on_rays` (``weight`` in
@@ -308,7 +393,9 @@ def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refin
     :class:`~inspector.kernels.meshdist.MeshDistance` of the reference and ``pose`` (4, 4)
     reference -> world, or any invertible affine placement: the signed distance of a world
     point ``x`` is then ``sd_scale * mesh(pose^-1 x)`` (a scaled reference,
-    :class:`~inspector.kernels.prior.SizePrior`; still 1-Lipschitz).
+    :class:`~inspector.kernels.prior.SizePrior`; still 1-Lipschitz). ``segments=False``:
+    the segments' lengths are not measured (NaN), which lets the coarse search test only
+    the samples that can win (the same selected points).
 
     Returns
     -------
@@ -330,7 +417,7 @@ def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refin
             MAP_LIPSCHITZ * camera_speed(stack, np.asarray(bounds, float)),
             *mesh.args(), Ai, float(sd_scale),
             float(step_mm), int(refine_levels), np.linspace(-1.0, 1.0, int(refine_samples)), float(tolerance_px),
-            float(accept_px), float(weight), float(lip), *out, oob,
+            float(accept_px), float(weight), float(lip), bool(segments), *out, oob,
         )
     return out[0], out[1], out[2], out[3], oob
 

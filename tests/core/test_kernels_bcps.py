@@ -134,9 +134,11 @@ def test_confidence_from_segment_length():
 
 
 @pytest.mark.parametrize("band_mm", [None, 0.3])
-def test_compiled_search_equals_numpy_search(views, band_mm):
+@pytest.mark.parametrize("segments", [True, False])
+def test_compiled_search_equals_numpy_search(views, band_mm, segments):
     """The fused per-ray kernel selects exactly what the level-by-level numpy search does
-    (with a narrow band some rays leave it and take the numpy path)."""
+    (with a narrow band some rays leave it and take the numpy path), also when it skips
+    measuring the segments (``segments=False``: the coarse samples tested by distance)."""
     import trimesh
 
     from inspector.kernels.hull_jit import stack_views
@@ -178,14 +180,55 @@ def test_compiled_search_equals_numpy_search(views, band_mm):
     stack = stack_views(views)
     kw = dict(step_mm=0.25, refine_levels=3, stack=stack)
     a = bk.select_on_rays(origin, dirs, views, 1, sd, bounds, **kw)
-    b = bk.select_on_rays(origin, dirs, views, 1, sd, bounds, mesh=md, pose=pose, **kw)
+    b = bk.select_on_rays(origin, dirs, views, 1, sd, bounds, mesh=md, pose=pose, segments=segments, **kw)
     assert a[3].mean() > 0.8
     np.testing.assert_array_equal(a[3], b[3])
     np.testing.assert_allclose(b[0], a[0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(b[1], a[1], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(b[2], a[2], rtol=0, atol=1e-12)
+    if segments:
+        np.testing.assert_allclose(b[2], a[2], rtol=0, atol=1e-12)
+    else:
+        assert np.isnan(b[2]).all()
     if band_mm is not None:
         assert sum(calls) > 0  # some rays left the band and took the numpy path
+
+
+def test_search_by_distance_selects_what_the_scan_selects(views):
+    """Without the segments' lengths the compiled search tests the coarse samples by
+    increasing distance and stops where none left can win: the same points as the full
+    scan, also where contours off the true rim (0.4 px of noise) leave only penalised
+    candidates on many rays and a reference off the sphere puts the best elsewhere."""
+    import trimesh
+
+    from inspector.kernels.hull_jit import stack_views
+    from inspector.kernels.meshdist import MeshDistance
+
+    ref = trimesh.creation.box(extents=(19.0, 20.5, 19.5))  # not the sphere: minima along the rays vary
+    md = MeshDistance(ref.vertices, ref.faces)
+    pose = np.eye(4)
+
+    def sd(X):
+        return md(X)
+
+    cam = views[2].camera
+    ang = np.linspace(0, 2 * np.pi, 400, endpoint=False)
+    axis = -cam.centre / np.linalg.norm(cam.centre)
+    e1 = np.cross(axis, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    rim = 10.0 * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
+    uv, _ = cam.project(rim)
+    uv += np.random.default_rng(7).normal(scale=0.4, size=uv.shape)
+    origin, dirs = cam.rays(uv)
+    bounds = np.array([[-12.0] * 3, [12.0] * 3])
+    kw = dict(step_mm=0.25, refine_levels=3, stack=stack_views(views), mesh=md, pose=pose, tolerance_px=0.05)
+    full = bk.select_on_rays(origin, dirs, views, 2, sd, bounds, **kw)
+    fast = bk.select_on_rays(origin, dirs, views, 2, sd, bounds, segments=False, **kw)
+    assert full[3].mean() > 0.5
+    np.testing.assert_array_equal(fast[3], full[3])
+    np.testing.assert_array_equal(fast[0], full[0])
+    np.testing.assert_array_equal(fast[1], full[1])
+    assert np.isnan(fast[2]).all() and np.isfinite(full[2][full[3]]).all()
 
 
 def test_compiled_ray_ranges_equal_numpy(views):
