@@ -84,9 +84,8 @@ class ContourRays:
         """The silhouettes as :class:`~inspector.kernels.bcps.View` and, compiled, their stack."""
         if self._views is None:
             sils = self.ctx.need("silhouettes", "bcps")
-            # OpenCV's distance transform and numpy release the GIL: cameras in parallel. The
-            # compiled kernels pack each map's region around the silhouette: the whole maps
-            # are never written (16 x 5 MP: 320 MB of float32 filled per inspection).
+            # OpenCV and numpy release the GIL: cameras in parallel. The compiled kernels pack each
+            # map's region around the silhouette (16 x 5 MP: 320 MB of float32 never written).
             maps = map_threads(lambda s: inside_region(s.soft) if self.compiled else inside_map(s.soft), sils)
             views = [bk.View(cam, m, s.touches_border) for cam, m, s in zip(self.ctx.capture.rig.cameras, maps, sils)]
             stack = None
@@ -100,18 +99,19 @@ class ContourRays:
     def camera(self, i: int) -> Rays:
         """Camera ``i``'s rays (:class:`~inspector.kernels.turn.Rays`) and the depth range
         each can meet the reconstruction in."""
-        if i not in self._rays:
-            cam = self.ctx.capture.rig.cameras[i]
-            contour = self.ctx.need("silhouettes", "bcps")[i].contour
-            recon = self.ctx.need("reconstruction", "bcps")
-            origin, dirs = cam.rays(contour)
-            # Only where the ray passes near the reconstruction (the hull is conservative).
-            # A pose update can move a grazing ray's optimum far along it: every pass
-            # searches the whole range.
-            t0, t1 = bk.ray_ranges(cam, contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm),
-                                   compiled=self.compiled)
-            self._rays[i] = Rays(origin, dirs, t0, t1)
+        if not self._rays:  # all cameras on the first ask, in parallel (the work releases the GIL)
+            self._rays = dict(enumerate(map_threads(self._build, range(len(self.ctx.capture.rig.cameras)))))
         return self._rays[i]
+
+    def _build(self, i: int) -> Rays:
+        cam, contour = self.ctx.capture.rig.cameras[i], self.ctx.need("silhouettes", "bcps")[i].contour
+        recon = self.ctx.need("reconstruction", "bcps")
+        origin, dirs = cam.rays(contour)
+        # Only where the ray passes near the reconstruction (the hull is conservative). A pose
+        # update can move a grazing ray's optimum far along it: every pass searches it all.
+        t0, t1 = bk.ray_ranges(cam, contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm),
+                               compiled=self.compiled)
+        return Rays(origin, dirs, t0, t1)
 
     def all(self) -> list[Rays]:
         """The rays of every camera with a contour, in camera order."""
