@@ -135,10 +135,10 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
                 prior: SizePrior | None = None) -> BcpsPoints:
     """Run the ``ray`` method on every camera for the reference placed at ``pose``.
 
-    ``sparse``: every ``refine_stride``-th ray, one refinement level less (25 um steps): a
-    selection that only feeds a fit (its ``segment_mm`` NaN: not measured). With a ``prior`` the candidates are ranked by their
-    signed distance to the sized reference; the deviations returned are against the nominal
-    one placed on the part (:meth:`SizePrior.rigid`).
+    ``sparse``: every ``refine_stride``-th ray, one refinement level less (25 um steps), no
+    ``segment_mm`` (NaN): a selection that only feeds a fit. With a ``prior`` the candidates
+    are ranked by their signed distance to the sized reference; the deviations returned are
+    against the nominal one placed on the part (:meth:`SizePrior.rigid`).
     """
     sils, ref = ctx.need("silhouettes", "bcps"), ctx.need("reference", "bcps")
     views, stack = rays.views()

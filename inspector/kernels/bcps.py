@@ -447,7 +447,7 @@ def _select_compiled(
     origin: np.ndarray, dirs: np.ndarray, views: Sequence[View], skip: int, sd_fn: SignedDistance, bounds: np.ndarray,
     hit: np.ndarray, t0: np.ndarray, t1: np.ndarray, lip: float, weight: float, s: _RaySearch, stack: object,
     mesh: object, pose: np.ndarray, sd_scale: float, out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    segments: bool = True,
+    segments: bool,
 ) -> None:
     """:func:`select_on_rays` by the compiled search (:func:`inspector.kernels.bcps_jit.select_rays`)
     on the rays ``hit``; the rays it flags (a distance outside the index's band) take the

@@ -135,8 +135,9 @@ def _ray_speeds(origin, d0, d1, d2, ta, tb, K, R, t, lc):
 @numba.njit(cache=True, nogil=True)
 def _distances_along(origin, d0, d1, d2, a0, step, Ai, sc, tri, pn, lo, h, dims, start, items, dc, out):
     """The signed distances of a ray's samples ``a0 + k * step`` into ``out`` (n,); False
-    at the first outside the index's band (NaN; the rest not computed). One call per ray:
-    not inlined, which keeps the kernel below quick to compile."""
+    at the first outside the index's band (NaN; the rest not computed). One call per ray,
+    not inlined: a third inlined copy of the distance made the kernel below slower to
+    compile."""
     for k in range(out.shape[0]):
         tk = a0 + step * k
         out[k] = _sd(origin[0] + tk * d0, origin[1] + tk * d1, origin[2] + tk * d2, Ai, sc, tri, pn, lo, h, dims,
