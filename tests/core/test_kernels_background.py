@@ -55,3 +55,20 @@ def test_background_level_of_a_5mp_image_finds_the_vignetting():
     assert np.percentile(err, 99) < 2.0
     assert lv.high == pytest.approx(float(field.max()), abs=2.0)
     assert lv.low == pytest.approx(float(field[16::32, 16::32].min()), abs=4.0)
+
+
+@pytest.mark.parametrize(("shape", "reduce"), [((2048, 2448), 8), ((1024, 1024), 8), ((200, 130), 3), ((100, 70), 5),
+                                               ((101, 80), 4)])
+def test_area_reduced_equals_reducing_a_float_copy_of_the_whole_image(shape, reduce):
+    """Reducing band by band (no float copy of the whole image) gives exactly the numbers of
+    OpenCV's area reduction of a float32 copy, also where the reduction does not divide the
+    band height (3, 5) and where it does not divide the image (101 rows: the whole-image path)."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    grey = rng.integers(0, 256, shape, dtype=np.uint8)
+    h, w = shape
+    ref = cv2.resize(grey.astype(np.float32), (w // reduce, h // reduce), interpolation=cv2.INTER_AREA)
+    out = bk.area_reduced(grey, reduce)
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out, ref)
