@@ -230,6 +230,10 @@ class Silhouette:
     edge_px : float
         Uncertainty of the sub-pixel contour beyond image noise, px: 0 for anti-aliased
         images, a few tenths for hard-edged ones (their pixel staircase, smoothed).
+    support : (y0, y1, x0, x1) int or None
+        Rows ``y0:y1`` and columns ``x0:x1`` that hold the object with a margin: outside
+        them the mask is False and the coverage below 0.5 (0 where it was not computed),
+        so kernels look for the object there only. None: anywhere in the image.
     """
 
     camera: str
@@ -238,6 +242,7 @@ class Silhouette:
     contour: np.ndarray
     touches_border: bool = False
     edge_px: float = 0.0
+    support: tuple[int, int, int, int] | None = None
 
 
 @dataclass(frozen=True, eq=False)

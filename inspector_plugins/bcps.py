@@ -86,7 +86,7 @@ class ContourRays:
             sils = self.ctx.need("silhouettes", "bcps")
             # OpenCV and numpy release the GIL: cameras in parallel. The compiled kernels pack each
             # map's region around the silhouette (16 x 5 MP: 320 MB of float32 never written).
-            maps = map_threads(lambda s: inside_region(s.soft) if self.compiled else inside_map(s.soft), sils)
+            maps = map_threads(lambda s: inside_region(s.soft, support=s.support) if self.compiled else inside_map(s.soft), sils)
             views = [bk.View(cam, m, s.touches_border) for cam, m, s in zip(self.ctx.capture.rig.cameras, maps, sils)]
             stack = None
             if self.compiled:

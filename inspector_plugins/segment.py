@@ -154,8 +154,9 @@ def _coverage_u8(grey: np.ndarray, polarity: str, p: SegmentParams, camera: str,
 
     Returns
     -------
-    soft : (H, W) float32
-        Coverage clipped to [0, 1].
+    soft : (H, W) float32 or None
+        Coverage clipped to [0, 1]; None when it is the unsmoothed ramp, which
+        :func:`segment_camera` computes only around the object (``clip(raw, 0, 1)``).
     above : (H, W) uint8
         1 where the coverage is >= 0.5.
     raw : callable
@@ -185,8 +186,7 @@ def _coverage_u8(grey: np.ndarray, polarity: str, p: SegmentParams, camera: str,
         sigma = AUTO_SMOOTH_PX if _hard_edged(above, partial) else 0.0
     if sigma > 0:
         return (*_smoothed(cv2.LUT(grey, raw_t), sigma), sigma)
-    soft = cv2.LUT(grey, np.clip(raw_t, 0.0, 1.0))
-    return soft, above, lambda y0, y1, x0, x1: cv2.LUT(grey[y0:y1, x0:x1], raw_t), 0.0
+    return None, above, lambda y0, y1, x0, x1: cv2.LUT(grey[y0:y1, x0:x1], raw_t), 0.0
 
 
 def _coverage_float(grey: np.ndarray, background, polarity: str, p: SegmentParams, camera: str):
@@ -274,10 +274,10 @@ SHARP_SLOPE = 0.63
 
 
 def _resharpen(soft: np.ndarray, offsets: np.ndarray, profile: np.ndarray) -> float:
-    """Steepen a wide edge's coverage (H, W) float32, in place, about its 0.5 level (mask and
-    contour unchanged) to a sharp edge's slope, so that ``coverage - 0.5`` near the contour
-    reads as a distance in px as for a sharp edge (the BCPS inside maps take it so); returns
-    the gain (1: unchanged)."""
+    """Steepen a wide edge's coverage (h, w) float32 (the crop around the object: a view,
+    written in place) about its 0.5 level (mask and contour unchanged) to a sharp edge's
+    slope, so that ``coverage - 0.5`` near the contour reads as a distance in px as for a
+    sharp edge (the BCPS inside maps take it so); returns the gain (1: unchanged)."""
     import cv2
 
     i0, i1 = np.searchsorted(offsets, [-0.5 - 1e-9, 0.5 - 1e-9])
@@ -287,9 +287,11 @@ def _resharpen(soft: np.ndarray, offsets: np.ndarray, profile: np.ndarray) -> fl
     gain = SHARP_SLOPE / slope
     if gain <= 1.0:
         return 1.0
-    # soft = clip(0.5 + (soft - 0.5) * gain, 0, 1), in place, in two OpenCV passes.
-    cv2.addWeighted(soft, gain, soft, 0.0, 0.5 * (1.0 - gain), dst=soft)
-    np.clip(soft, 0.0, 1.0, out=soft)
+    # soft = clip(0.5 + (soft - 0.5) * gain, 0, 1), in two OpenCV passes on a contiguous
+    # copy (OpenCV would not write a strided view back).
+    c = np.ascontiguousarray(soft)
+    cv2.addWeighted(c, gain, c, 0.0, 0.5 * (1.0 - gain), dst=c)
+    np.clip(c, 0.0, 1.0, out=soft)
     return gain
 
 
@@ -358,11 +360,18 @@ def segment_camera(
         raise StageError(f"camera {camera}: empty silhouette (no object region of {p.min_area_px} px or more)")
     mask = comps.mask
     border = _polarity_check(camera, mask, polarity, polarity_source) > 0.0
-    if comps.removed is not None:
-        soft[comps.removed] = 0.0  # coverage >= 0.5 only on the kept components
-        report["specks_ignored"] = bk.count_blobs(comps.removed)
     y0, y1, x0, x1 = sk.grow_box(comps.box, mask.shape, CROP_MARGIN)
     crop = dict(origin=(x0, y0), image_shape=mask.shape)
+    raw = raw_in(y0, y1, x0, x1)
+    if comps.removed is not None:
+        # coverage >= 0.5 only on the kept components
+        raw = np.where(comps.removed[y0:y1, x0:x1], np.float32(0.0), raw)
+        if soft is not None:
+            soft[comps.removed] = 0.0
+        report["specks_ignored"] = bk.count_blobs(comps.removed)
+    if soft is None:  # the coverage only where it is read: the crop (zero beyond: no page touched)
+        soft = sk.lazy_zeros(mask.shape, np.float32)
+        np.clip(raw, 0.0, 1.0, out=soft[y0:y1, x0:x1])
     m = mask[y0:y1, x0:x1]
     # Without an empty field, specks on the edge are found by their shape: a small bump on a
     # straight stretch of contour (the zone around it is dropped below); looked for on a
@@ -373,9 +382,6 @@ def segment_camera(
     bumps = sk.contour_bumps(pieces, soft[y0:y1, x0:x1], origin=(x0, y0)) if pieces else np.zeros((0, 2))
     window = 2
     if p.subpixel == "area":
-        raw = raw_in(y0, y1, x0, x1)
-        if comps.removed is not None:  # raw >= 0.5 outside the mask: the dropped components
-            raw = np.where(comps.removed[y0:y1, x0:x1], np.float32(0.0), raw)
         if p.edge_window_px:
             window = int(p.edge_window_px)
         elif sigma == 0:  # anti-aliased: the profile is the optics' (a smoothed hard edge's is ours)
@@ -384,7 +390,7 @@ def segment_camera(
             report["edge_px"] = round(width, 2)
             if width > SHARP_EDGE_PX:
                 window = min(int(math.ceil(width)) + 1, MAX_WINDOW_PX)
-                gain = _resharpen(soft, offsets, profile)
+                gain = _resharpen(soft[y0:y1, x0:x1], offsets, profile)
                 if gain > 1.0:
                     report["edge_gain"] = round(gain, 2)
         contour = sk.refine_contour_area(contour, raw, half_window=window, **crop)
@@ -396,7 +402,7 @@ def segment_camera(
     report["optics"] = bool(report["background"] in ("image", "model") or report.get("specks_ignored")
                             or report.get("points_dropped") or window != 2)
     sil = Silhouette(camera=camera, mask=mask, soft=soft, contour=contour, touches_border=border,
-                     edge_px=SMOOTHED_EDGE_PX if sigma > 0 else 0.0)
+                     edge_px=SMOOTHED_EDGE_PX if sigma > 0 else 0.0, support=(y0, y1, x0, x1))
     return sil, report
 
 

@@ -20,6 +20,7 @@ and give the same points as on the whole image; both are compiled by Numba on fi
 from __future__ import annotations
 
 import math
+import mmap
 import threading
 from typing import NamedTuple
 
@@ -56,6 +57,7 @@ __all__ = [
     "edge_profile",
     "edge_half_width",
     "near_mask",
+    "lazy_zeros",
 ]
 
 
@@ -129,6 +131,21 @@ def median_denoise(grey: np.ndarray, mode: str, impulse_threshold: float) -> np.
     calm = cv2.absdiff(grey, med)
     cv2.threshold(calm, math.floor(impulse_threshold), 1, cv2.THRESH_BINARY_INV, dst=calm)
     return cv2.copyTo(grey, calm, med)
+
+
+def lazy_zeros(shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
+    """Zeros of ``shape`` whose pages cost nothing until written: an anonymous memory map.
+
+    A silhouette's full-size arrays (coverage, mask) are written only around the object;
+    :func:`numpy.zeros` takes its memory from the heap once the allocator keeps freed blocks,
+    and then clears every page (16 x 20 MB of float32 at 5 MP, more than the work on the
+    object). An anonymous map is zero until touched, and unmapped with the array.
+    """
+    dt = np.dtype(dtype)
+    n = math.prod(shape)
+    if n * dt.itemsize < 1 << 20:  # small: the heap is as cheap
+        return np.zeros(shape, dt)
+    return np.frombuffer(mmap.mmap(-1, n * dt.itemsize), dt, count=n).reshape(shape)
 
 
 def histogram_u8(grey: np.ndarray) -> np.ndarray:
@@ -422,7 +439,7 @@ def kept_components(binary: np.ndarray, min_area: int) -> Components:
         b = binary
     else:
         b = (binary != 0).view(np.uint8)
-    mask = np.zeros(b.shape, bool)
+    mask = lazy_zeros(b.shape, bool)
     x, y, w, h = cv2.boundingRect(b) if b.size else (0, 0, 0, 0)
     if w == 0 or h == 0:
         return Components(mask, None, None)
@@ -438,7 +455,7 @@ def kept_components(binary: np.ndarray, min_area: int) -> Components:
     else:
         kept = keep[labels]
         mask[y : y + h, x : x + w] = kept
-        removed = np.zeros(b.shape, bool)
+        removed = lazy_zeros(b.shape, bool)
         removed[y : y + h, x : x + w] = sub.view(bool) & ~kept
     if not keep.any():
         return Components(mask, None, removed)
@@ -785,7 +802,7 @@ class InsideRegion(NamedTuple):
         return out
 
 
-def inside_region(soft: np.ndarray, margin: int = 16) -> InsideRegion:
+def inside_region(soft: np.ndarray, margin: int = 16, support: tuple[int, int, int, int] | None = None) -> InsideRegion:
     """Signed "inside-ness" of the pixels around the silhouette, in pixels: >= 0 inside it.
 
     Near the contour it is ``soft - 0.5`` (the coverage ramp, whose 0.5 level is the
@@ -801,6 +818,9 @@ def inside_region(soft: np.ndarray, margin: int = 16) -> InsideRegion:
         Coverage in [0, 1].
     margin : int
         px.
+    support : (y0, y1, x0, x1) int, optional
+        Rows and columns outside which ``soft`` is below 0.5
+        (:attr:`~inspector.model.Silhouette.support`): the object is looked for there only.
 
     Returns
     -------
@@ -808,13 +828,14 @@ def inside_region(soft: np.ndarray, margin: int = 16) -> InsideRegion:
     """
     import cv2
 
-    mask = soft >= 0.5
-    rows, cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    sy, sy1, sx, sx1 = (0, soft.shape[0], 0, soft.shape[1]) if support is None else support
+    mask = soft[sy:sy1, sx:sx1] >= 0.5
+    rows, cols = np.flatnonzero(mask.any(axis=1)) + sy, np.flatnonzero(mask.any(axis=0)) + sx
     if not len(rows):
         return InsideRegion(np.zeros((0, 0), np.float32), 0, 0, soft.shape)
     y0, y1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, soft.shape[0])
     x0, x1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, soft.shape[1])
-    m = mask[y0:y1, x0:x1]
+    m = soft[y0:y1, x0:x1] >= 0.5
     edt = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
     values = np.where(edt <= 1.0, soft[y0:y1, x0:x1] - 0.5, 0.5 - edt).astype(np.float32, copy=False)
     return InsideRegion(values, int(y0), int(x0), soft.shape)

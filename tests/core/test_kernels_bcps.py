@@ -358,6 +358,17 @@ def test_maps_packed_from_their_regions_equal_the_whole_maps_packed(views):
         a, b = _with_depth_crop(region), _with_depth_crop(inside_map(s))
         np.testing.assert_array_equal(a[0], b[0])
         assert a[1:] == b[1:]
+    assert inside_region(empty, support=(10, 20, 10, 20)).values.size == 0
+    # Looking for the object on a support only (a silhouette's: a box around it, coverage
+    # below 0.5 outside) finds the same region.
+    for s, supports in ((soft, [(0, 75, 5, 95), (0, 120, 0, 160)]), (soft[::-1].copy(), [(45, 120, 5, 95)])):
+        noisy = np.full(s.shape, 0.45, np.float32)
+        for y0, y1, x0, x1 in supports:
+            noisy[y0:y1, x0:x1] = s[y0:y1, x0:x1]
+            got, want = inside_region(noisy, support=(y0, y1, x0, x1)), inside_region(s)
+            assert (got.y0, got.x0) == (want.y0, want.x0)
+            np.testing.assert_array_equal(got.values, want.values)
+
     def region_of(inside):
         ys, xs = np.nonzero(inside > -1e5)
         y0, x0 = int(ys.min()), int(xs.min())
