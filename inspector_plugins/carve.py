@@ -30,6 +30,7 @@ def run_carve(ctx: InspectionContext, p: CarveParams) -> InspectionContext:
         open_border=[s.touches_border for s in sils],
         coarse_mm=p.coarse_mm or None,
         mesh_voxel_mm=p.mesh_voxel_mm or None,
+        supports=[s.support for s in sils],
     )
     if len(recon.points) == 0:
         raise StageError("the silhouettes have no common volume (check the calibration in rig.json)")

@@ -231,12 +231,18 @@ def signed_distance(mask: np.ndarray, *, open_border: bool = False) -> np.ndarra
     return _sdt_padded(m, 1 if open_border else 0)
 
 
-def _object_box(mask: np.ndarray) -> tuple[int, int, int, int]:
-    """Bounding box ``(x, y, w, h)`` px of the True pixels of ``mask`` (H, W) bool (w = 0: none)."""
+def _object_box(mask: np.ndarray, support: tuple[int, int, int, int] | None = None) -> tuple[int, int, int, int]:
+    """Bounding box ``(x, y, w, h)`` px of the True pixels of ``mask`` (H, W) bool (w = 0:
+    none), looked for only in rows ``y0:y1`` and columns ``x0:x1`` of ``support`` when given
+    (the mask is False outside them)."""
     import cv2
 
+    y0, x0 = 0, 0
+    if support is not None:
+        y0, y1, x0, x1 = support
+        mask = mask[y0:y1, x0:x1]
     x, y, w, h = cv2.boundingRect(np.ascontiguousarray(mask, dtype=bool).view(np.uint8))
-    return int(x), int(y), int(w), int(h)
+    return (int(x) + x0, int(y) + y0, int(w), int(h)) if w else (0, 0, 0, 0)
 
 
 def _window(
@@ -1262,9 +1268,9 @@ def _checked_inputs(
 
 def _carve_bounds(
     cameras: Sequence[Camera], masks: Sequence[np.ndarray], ob: Sequence[bool], bounds: np.ndarray | None,
-    st: dict[str, Any],
+    st: dict[str, Any], supports: Sequence[tuple[int, int, int, int] | None] | None = None,
 ) -> tuple[list[tuple[int, int, int, int]], np.ndarray | None]:
-    """The masks' object boxes (:func:`_object_box`) and the (2, 3) ``[min, max]`` world box to
+    """The masks' object boxes (:func:`_object_box`, within ``supports``) and the (2, 3) ``[min, max]`` world box to
     carve, mm (``bounds``, checked, or :func:`default_bounds`); ``None`` for the box when the
     hull is empty, with ``n_points`` and ``empty_reason`` in ``st``.
 
@@ -1276,7 +1282,7 @@ def _carve_bounds(
     for cam, m in zip(cameras, masks):
         if m.shape != (int(cam.height), int(cam.width)):
             raise ValueError(f"camera {cam.name}: mask shape {m.shape}, camera is {cam.width}x{cam.height}")
-    boxes = [_object_box(m) for m in masks]
+    boxes = [_object_box(m, None if supports is None else supports[i]) for i, m in enumerate(masks)]
     if any((not o) and box[2] == 0 for box, o in zip(boxes, ob)):
         st.update(n_points=0, empty_reason="a closed camera sees no object")
         return boxes, None
@@ -1620,6 +1626,7 @@ def carve(
     mesh_voxel_mm: float | None = None,
     stats: dict[str, Any] | None = None,
     backend: str = "auto",
+    supports: Sequence[tuple[int, int, int, int] | None] | None = None,
 ) -> Reconstruction:
     """Coarse-to-fine visual hull of binary silhouettes.
 
@@ -1660,6 +1667,10 @@ def carve(
         grid (:mod:`inspector.kernels.carving_jit`); ``"numpy"``: the pure-numpy
         reference (same cells, same points to rounding); ``"auto"`` (default): numba
         when it can be imported.
+    supports : sequence of (y0, y1, x0, x1) int or None, optional
+        Per camera, the rows and columns outside which its mask is False
+        (:attr:`~inspector.model.Silhouette.support`): its object is looked for there only.
+        None (default, or for a camera): anywhere.
 
     Returns
     -------
@@ -1685,7 +1696,9 @@ def carve(
     st: dict[str, Any] = stats if stats is not None else {}
     st.clear()
     t0 = time.perf_counter()
-    boxes, box = _carve_bounds(cameras, masks, ob, bounds, st)
+    if supports is not None and len(supports) != len(masks):
+        raise ValueError(f"{len(supports)} supports for {len(masks)} masks")
+    boxes, box = _carve_bounds(cameras, masks, ob, bounds, st, supports)
     if box is None:
         return _empty(voxel_mm)
     views, buf = _silhouette_views(cameras, masks, ob, boxes, backend)

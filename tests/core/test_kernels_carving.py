@@ -543,6 +543,23 @@ def test_carve_on_windows_equals_whole_images(monkeypatch, rig_lo, sphere_lo, ba
         np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
 
 
+def test_carve_with_the_masks_supports_equals_without(rig_lo, sphere_lo):
+    """Supports (boxes outside which each mask is False) only say where to look: the same
+    hull, and a support that cuts the object is seen as such (a smaller hull)."""
+    sup = []
+    for m in sphere_lo:
+        ys, xs = np.nonzero(m)
+        sup.append((int(ys.min()) - 7, int(ys.max()) + 5, int(xs.min()) - 3, int(xs.max()) + 9))
+    a = ck.carve(rig_lo, sphere_lo, voxel_mm=0.5)
+    b = ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, supports=sup)
+    np.testing.assert_array_equal(a.points, b.points)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    assert ck._object_box(sphere_lo[0], sup[0]) == ck._object_box(sphere_lo[0])
+    assert ck._object_box(np.zeros((20, 30), bool), (2, 9, 3, 8)) == (0, 0, 0, 0)
+    with pytest.raises(ValueError, match="2 supports for 16 masks"):
+        ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, supports=sup[:2])
+
+
 def test_mesh_is_marching_cubes_of_the_exact_hull_function(rig_lo, sphere_lo):
     """The narrow-band grid gives the marching cubes of f evaluated on every node."""
     from skimage.measure import marching_cubes
