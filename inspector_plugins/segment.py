@@ -128,9 +128,11 @@ def _hard_edged(above: np.ndarray, partial: int) -> bool:
 INVERTED_BORDER_FRACTION = 0.75
 
 
-def _polarity_check(camera: str, mask: np.ndarray, polarity: str, source: str) -> float:
-    """The share of the image border the object covers; StageError when it is the background."""
-    share = sk.border_fraction(mask)
+def _polarity_check(camera: str, mask: np.ndarray, polarity: str, source: str,
+                    box: tuple[int, int, int, int] | None = None) -> float:
+    """The share of the image border the object covers (``mask`` False outside ``box``);
+    StageError when it is the background."""
+    share = sk.border_fraction(mask, box)
     if share > INVERTED_BORDER_FRACTION:
         other = "bright-object" if polarity == "dark-object" else "dark-object"
         raise StageError(
@@ -359,7 +361,7 @@ def segment_camera(
     if comps.box is None:
         raise StageError(f"camera {camera}: empty silhouette (no object region of {p.min_area_px} px or more)")
     mask = comps.mask
-    border = _polarity_check(camera, mask, polarity, polarity_source) > 0.0
+    border = _polarity_check(camera, mask, polarity, polarity_source, comps.box) > 0.0
     y0, y1, x0, x1 = sk.grow_box(comps.box, mask.shape, CROP_MARGIN)
     crop = dict(origin=(x0, y0), image_shape=mask.shape)
     raw = raw_in(y0, y1, x0, x1)

@@ -96,6 +96,10 @@ def grey_u8(image: np.ndarray) -> np.ndarray | None:
     return None
 
 
+#: Bytes of the buffer :func:`median_denoise` works through (a band of rows, in cache).
+DENOISE_BAND_BYTES = 1 << 18
+
+
 def median_denoise(grey: np.ndarray, mode: str, impulse_threshold: float) -> np.ndarray:
     """3x3 median against impulse noise.
 
@@ -127,10 +131,18 @@ def median_denoise(grey: np.ndarray, mode: str, impulse_threshold: float) -> np.
     if impulse_threshold >= 255:
         return grey
     # Integer differences: |d| <= t  <=>  |d| <= floor(t). Keep those pixels, take the
-    # median elsewhere (in place: fresh full-size buffers cost page faults).
-    calm = cv2.absdiff(grey, med)
-    cv2.threshold(calm, math.floor(impulse_threshold), 1, cv2.THRESH_BINARY_INV, dst=calm)
-    return cv2.copyTo(grey, calm, med)
+    # median elsewhere: in place, band by band through one small buffer (fresh full-size
+    # buffers cost page faults).
+    grey = np.ascontiguousarray(grey)
+    rows = max(1, DENOISE_BAND_BYTES // max(grey.shape[1], 1))
+    calm = np.empty((min(rows, grey.shape[0]), grey.shape[1]), np.uint8)
+    for y in range(0, grey.shape[0], rows):
+        g, m = grey[y:y + rows], med[y:y + rows]
+        c = calm[:len(g)]
+        cv2.absdiff(g, m, dst=c)
+        cv2.threshold(c, math.floor(impulse_threshold), 1, cv2.THRESH_BINARY_INV, dst=c)
+        cv2.copyTo(g, c, m)
+    return med
 
 
 def lazy_zeros(shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
@@ -482,13 +494,26 @@ def grow_box(box: tuple[int, int, int, int], shape: tuple[int, ...], margin: int
     return max(y0 - margin, 0), min(y1 + margin, h), max(x0 - margin, 0), min(x1 + margin, w)
 
 
-def border_fraction(mask: np.ndarray) -> float:
-    """Fraction of the image's border pixels that are object pixels, of a (H, W) mask."""
+def border_fraction(mask: np.ndarray, box: tuple[int, int, int, int] | None = None) -> float:
+    """Fraction of the image's border pixels that are object pixels, of a (H, W) mask.
+
+    ``box`` (y0, y1, x0, x1): rows and columns outside which the mask is False; only the
+    border within it is read (a column of a large image touches every page of it).
+    """
     h, w = mask.shape[:2]
     if h < 2 or w < 2:
         return float(np.count_nonzero(mask)) / max(mask.size, 1)
-    on = (np.count_nonzero(mask[0]) + np.count_nonzero(mask[-1])
-          + np.count_nonzero(mask[1:-1, 0]) + np.count_nonzero(mask[1:-1, -1]))
+    y0, y1, x0, x1 = (0, h, 0, w) if box is None else box
+    r0, r1 = max(y0, 1), min(y1, h - 1)  # the rows between the first and the last
+    on = 0
+    if y0 == 0:
+        on += int(np.count_nonzero(mask[0, x0:x1]))
+    if y1 == h:
+        on += int(np.count_nonzero(mask[h - 1, x0:x1]))
+    if x0 == 0 and r1 > r0:
+        on += int(np.count_nonzero(mask[r0:r1, 0]))
+    if x1 == w and r1 > r0:
+        on += int(np.count_nonzero(mask[r0:r1, w - 1]))
     return on / (2 * w + 2 * (h - 2))
 
 

@@ -126,8 +126,12 @@ def noisy_disc_u8(h=90, w=110, seed=0, impulses=0.02):
 
 @pytest.mark.parametrize("mode", ["off", "impulse", "full"])
 @pytest.mark.parametrize("threshold", [1.0, 20.5, 60.0, 254.9, 300.0])
-def test_median_denoise_u8_equals_float(mode, threshold):
+@pytest.mark.parametrize("band_rows", [None, 7])
+def test_median_denoise_u8_equals_float(mode, threshold, band_rows, monkeypatch):
+    """The 8-bit path (in bands of rows: 7 leaves a remainder of 6 on 90 rows) is the float one."""
     g = noisy_disc_u8()
+    if band_rows:
+        monkeypatch.setattr(sk, "DENOISE_BAND_BYTES", band_rows * g.shape[1])
     got = sk.median_denoise(g, mode, threshold)
     want = sk.median_denoise(g.astype(np.float32), mode, threshold)
     assert got.dtype == np.uint8 and np.array_equal(got.astype(np.float32), want)
@@ -485,3 +489,16 @@ def test_interpolated_levels_are_not_rounded_to_a_grey_level():
     assert bg == float(round(bg)) and fg == float(round(fg))  # plain medians: grey levels
     bgi, fgi = sk.levels_from_histogram(table, counts, level, interpolate=True)
     assert bgi == pytest.approx(255 - 173.3, abs=0.03) and fgi == pytest.approx(255 - 34.6, abs=0.05)
+
+
+def test_border_fraction_within_a_box_equals_the_whole_mask():
+    """Given the box outside which the mask is False, only the border within it is read: the
+    same fraction, for boxes on every side, corners, inside, and a one-row box."""
+    rng = np.random.default_rng(5)
+    h, w = 23, 31
+    for y0, y1, x0, x1 in [(0, 23, 0, 31), (0, 5, 3, 9), (20, 23, 28, 31), (4, 9, 0, 7), (6, 18, 25, 31),
+                           (3, 20, 4, 27), (0, 1, 0, 31), (22, 23, 2, 5), (0, 23, 30, 31)]:
+        mask = np.zeros((h, w), bool)
+        mask[y0:y1, x0:x1] = rng.random((y1 - y0, x1 - x0)) < 0.6
+        assert sk.border_fraction(mask, (y0, y1, x0, x1)) == sk.border_fraction(mask)
+    assert sk.border_fraction(np.ones((h, w), bool), (0, h, 0, w)) == 1.0
