@@ -157,7 +157,11 @@ def lazy_zeros(shape: tuple[int, ...], dtype: np.dtype | type) -> np.ndarray:
     n = math.prod(shape)
     if n * dt.itemsize < 1 << 20:  # small: the heap is as cheap
         return np.zeros(shape, dt)
-    return np.frombuffer(mmap.mmap(-1, n * dt.itemsize), dt, count=n).reshape(shape)
+    try:
+        buf = mmap.mmap(-1, n * dt.itemsize)
+    except OSError:  # no map left (vm.max_map_count): the heap's zeros are the same array
+        return np.zeros(shape, dt)
+    return np.frombuffer(buf, dt, count=n).reshape(shape)
 
 
 def histogram_u8(grey: np.ndarray) -> np.ndarray:

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -502,3 +504,36 @@ def test_border_fraction_within_a_box_equals_the_whole_mask():
         mask[y0:y1, x0:x1] = rng.random((y1 - y0, x1 - x0)) < 0.6
         assert sk.border_fraction(mask, (y0, y1, x0, x1)) == sk.border_fraction(mask)
     assert sk.border_fraction(np.ones((h, w), bool), (0, h, 0, w)) == 1.0
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="needs Linux /proc")
+def test_lazy_zeros_are_zeros_whose_untouched_pages_cost_no_memory(monkeypatch):
+    """A 256 MB lazy array with 1 MB written adds far less than 256 MB to the resident set;
+    it reads as zeros, writes like any array, pickles; small ones and a failed map give
+    numpy's zeros."""
+    import mmap
+    import pickle
+
+    before = _rss_bytes()
+    a = sk.lazy_zeros((8192, 8192), np.float32)
+    a[100:110, :] = 1.5  # 320 KB of rows
+    assert _rss_bytes() - before < 64 << 20
+    assert a.shape == (8192, 8192) and a.dtype == np.float32 and a.flags.writeable
+    assert a[100, 5] == 1.5 and a[0, 0] == 0.0 and float(a[5000:5010].sum()) == 0.0
+    b = pickle.loads(pickle.dumps(a[95:115]))
+    assert b.sum() == 1.5 * 10 * 8192
+    del a, b
+    small = sk.lazy_zeros((10, 10), bool)
+    assert small.base is None and not small.any()  # numpy's own
+
+    def no_map(*args, **kwargs):
+        raise OSError(12, "Cannot allocate memory")
+
+    monkeypatch.setattr(mmap, "mmap", no_map)
+    c = sk.lazy_zeros((2048, 2448), np.float32)
+    assert c.shape == (2048, 2448) and not c.any()
