@@ -151,6 +151,35 @@ class _Field:
         return cv2.resize(fine, (width, height), interpolation=cv2.INTER_LINEAR)
 
 
+def _quantiles_last_axis(blocks: np.ndarray, qs: tuple[float, ...]) -> list[np.ndarray]:
+    """``numpy.quantile(blocks, qs, axis=-1)`` (linear interpolation), the same numbers, from
+    one sort of the last axis: numpy's quantile partitions the rows one by one, ten times
+    slower than a sort on the many short rows of the block statistics (16-25 values).
+
+    Parameters
+    ----------
+    blocks : (..., n) float32
+    qs : quantiles in [0, 1]
+
+    Returns
+    -------
+    list of (...) float64
+        As numpy computes them: between the sorted neighbours ``a``, ``b`` of the virtual
+        index ``q (n - 1)``, ``a + (b - a) t``, or ``b - (b - a)(1 - t)`` from ``t >= 0.5``.
+    """
+    s = np.sort(blocks, axis=-1)
+    n = s.shape[-1]
+    out = []
+    for q in qs:
+        v = np.float64(n - 1) * np.float64(q)
+        i = int(np.floor(v))
+        t = v - np.float64(i)
+        a, b = s[..., i], s[..., min(i + 1, n - 1)]
+        diff = b - a
+        out.append(b - diff * (np.float64(1.0) - t) if t >= 0.5 else a + diff * t)
+    return out
+
+
 def _block_quantiles(small: np.ndarray, ys: np.ndarray, xs: np.ndarray, qs: tuple[float, float], vals: np.ndarray,
                      far: np.ndarray) -> None:
     """Two quantiles (linear interpolation, as :func:`numpy.quantile`) of every block
@@ -169,7 +198,7 @@ def _block_quantiles(small: np.ndarray, ys: np.ndarray, xs: np.ndarray, qs: tupl
             cols = np.flatnonzero(ws == wsz)
             ix = xs[cols][:, None] + np.arange(wsz)[None, :]  # (nc, wsz)
             blocks = small[iy[:, None, :, None], ix[None, :, None, :]].reshape(len(rows), len(cols), -1)
-            a, b = np.quantile(blocks, list(qs), axis=2)
+            a, b = _quantiles_last_axis(blocks, qs)
             vals[np.ix_(rows, cols)] = a
             far[np.ix_(rows, cols)] = b
 
@@ -248,7 +277,7 @@ def background_level(grey: np.ndarray, polarity: str, *, quantile: float = 0.75,
         blocks = small.reshape(bh, sh // bh, bw, sw // bw).transpose(0, 2, 1, 3).reshape(bh, bw, -1)
         kth = int(round(q * (blocks.shape[2] - 1)))  # the nearest rank: no interpolation needed
         kfar = int(round(q_far * (blocks.shape[2] - 1)))
-        part = np.partition(blocks, sorted({kth, kfar}), axis=2)
+        part = np.sort(blocks, axis=2)  # (short rows: a sort is cheaper than numpy's partition)
         vals[:], far[:] = part[..., kth], part[..., kfar]
     else:  # blocks of BLOCK x BLOCK reduced pixels, the last ones take the remainder's share
         ys = np.linspace(0, sh, bh + 1).astype(int)

@@ -72,3 +72,20 @@ def test_area_reduced_equals_reducing_a_float_copy_of_the_whole_image(shape, red
     out = bk.area_reduced(grey, reduce)
     assert out.dtype == np.float32
     np.testing.assert_array_equal(out, ref)
+
+
+@pytest.mark.parametrize("n", [4, 15, 16, 20, 25])
+def test_quantiles_from_one_sort_equal_numpy_quantile(n):
+    """The block statistics' quantiles from one sort: numpy.quantile's numbers and dtype,
+    for quantiles below and above the halfway interpolation, at the ends, and with ties."""
+    rng = np.random.default_rng(n)
+    for trial in range(6):
+        blocks = (rng.random((7, 9, n)) * 255).astype(np.float32)
+        if trial % 2:
+            blocks = np.round(blocks / 8)  # many ties
+        for qs in ((0.75, 0.05), (0.25, 0.95), (0.5, 0.0), (1.0, 0.333)):
+            got = bk._quantiles_last_axis(blocks, qs)
+            want = np.quantile(blocks, list(qs), axis=2)
+            for g, w in zip(got, want):
+                assert g.dtype == w.dtype
+                np.testing.assert_array_equal(g, w)
