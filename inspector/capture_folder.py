@@ -73,7 +73,7 @@ from inspector.kernels.camera import is_rotation
 from inspector.limits import check_memory, image_file_bytes, limit, load_json, read_bounded
 from inspector.model import Camera, Capture, Rig, Truth
 from inspector.names import check_name, folder_name, name_problem, printable, text_problem
-from inspector.png import PNG_IEND, PNG_SIGNATURE, is_complete_png, png_header
+from inspector.png import PNG_IEND, PNG_SIGNATURE, decode_grey, is_complete_png, png_header
 from inspector.registry import Acquisition
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -436,10 +436,12 @@ def decode_image(
                         "an image may have (INSPECTOR_MAX_IMAGE_PIXELS)")
         if data.rfind(PNG_IEND, max(0, len(data) - 1024)) < 0:
             raise error(f"{label}: truncated PNG (no IEND chunk)")
-    try:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
+    img = decode_grey(data) if is_png else None  # the camera's grey PNGs without OpenCV's slower inflate
+    if img is None:
+        try:
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+        except cv2.error:
+            img = None
     if img is None:
         raise error(f"{label}: unreadable {'PNG (corrupt data)' if png_only else 'image (corrupt or unknown format)'}")
     return img

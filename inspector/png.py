@@ -1,9 +1,11 @@
-"""The PNG file format's own checks, made before an image is decoded (part of :mod:`inspector.capture_folder`).
+"""The PNG file format's own checks, made before an image is decoded, and the decoder of grey camera images (part of :mod:`inspector.capture_folder`).
 
 :func:`png_header` reads and checks the signature and header chunk that start a PNG file (its
 size, bit depth and colour type, as the PNG specification defines them);
 :func:`is_complete_png` says whether a file is a whole PNG (what a hot folder asks before it
 reads a capture). Both are also importable from :mod:`inspector.capture_folder`.
+:func:`decode_grey` decodes the 8- and 16-bit grey images cameras write, twice as fast as
+OpenCV; any other PNG is left to OpenCV.
 """
 
 from __future__ import annotations
@@ -11,11 +13,14 @@ from __future__ import annotations
 import os
 import stat
 import struct
+import sys
 import zlib
+
+import numpy as np
 
 from inspector.errors import CaptureError
 
-__all__ = ["PNG_SIGNATURE", "PNG_IEND", "png_header", "is_complete_png"]
+__all__ = ["PNG_SIGNATURE", "PNG_IEND", "png_header", "is_complete_png", "decode_grey"]
 
 #: The eight bytes every PNG file starts with.
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -79,3 +84,78 @@ def is_complete_png(path: str | os.PathLike[str]) -> bool:
             return f.read(1024).rfind(PNG_IEND) >= 0
     except (OSError, CaptureError, ValueError):
         return False
+
+
+#: Ancillary chunks that change no pixel of a grey image as OpenCV decodes it (text, time and
+#: physical pixel size). Any other (gamma, significant bits, transparency ...) leaves the
+#: image to OpenCV, so that both decoders give the same array.
+_PLAIN_CHUNKS = frozenset({b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs"})
+
+
+def decode_grey(data: bytes) -> np.ndarray | None:
+    """The pixels of a non-interlaced 8- or 16-bit grey PNG, or None for OpenCV to decode.
+
+    Why not OpenCV for these: decoding is a quarter of a 16 x 5 MP inspection cycle, and
+    OpenCV's zlib inflates a 5 MP image in 19 ms where libdeflate takes 11 (the whole decode
+    28-33 ms against about 13). The chunks are read as the PNG specification defines them,
+    every chunk's checksum is checked, the image data must inflate to exactly its rows (its
+    own checksum checked by libdeflate), and the rows' filters are undone by
+    :func:`~inspector.kernels.png_rows.unfilter_rows`.
+
+    Parameters
+    ----------
+    data : bytes
+        A whole PNG file whose header :func:`png_header` has accepted.
+
+    Returns
+    -------
+    (H, W) uint8 or uint16, or None
+        What ``cv2.imdecode(..., IMREAD_UNCHANGED)`` returns for the file (16-bit samples
+        in the machine's byte order); None for any other PNG (colour, palette, interlaced,
+        a chunk that could change the pixels, any damage): OpenCV decides those, and
+        reports the damage.
+    """
+    if len(data) < 33 or not data.startswith(PNG_SIGNATURE) or data[12:16] != b"IHDR":
+        return None
+    width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", data[16:29])
+    if colour != 0 or depth not in (8, 16) or interlace:
+        return None
+    import deflate  # lazy: a small C extension, needed only when a PNG is decoded
+
+    view, pos, parts, ended = memoryview(data), 8, [], False
+    while True:
+        if pos + 12 > len(data):
+            return None
+        length, kind = struct.unpack_from(">I4s", data, pos)
+        end = pos + 12 + length
+        if end > len(data) or deflate.crc32(view[pos + 4:end - 4]) != int.from_bytes(data[end - 4:end], "big"):
+            return None
+        if kind == b"IDAT":
+            if ended:  # the image data must be consecutive chunks
+                return None
+            parts.append(view[pos + 8:end - 4])
+        else:
+            ended = bool(parts)
+            if kind == b"IEND":
+                break
+            if (kind == b"IHDR") != (pos == 8) or (kind != b"IHDR" and kind not in _PLAIN_CHUNKS):
+                return None
+        pos = end
+    bpp = depth // 8
+    row_bytes = width * bpp
+    size = height * (row_bytes + 1)
+    try:
+        raw = deflate.zlib_decompress(parts[0] if len(parts) == 1 else b"".join(parts), size)
+    except (deflate.DeflateError, IndexError):
+        return None
+    if len(raw) != size:
+        return None
+    from inspector.kernels.png_rows import unfilter_rows  # lazy: Numba
+
+    pixels = unfilter_rows(np.frombuffer(raw, np.uint8), height, row_bytes, bpp)
+    if pixels is None or depth == 8:
+        return pixels
+    grey = pixels.view(np.uint16)
+    if sys.byteorder == "little":  # PNG's samples are big-endian
+        grey.byteswap(inplace=True)
+    return grey
