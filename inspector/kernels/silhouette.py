@@ -864,9 +864,13 @@ def inside_region(soft: np.ndarray, margin: int = 16, support: tuple[int, int, i
         return InsideRegion(np.zeros((0, 0), np.float32), 0, 0, soft.shape)
     y0, y1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, soft.shape[0])
     x0, x1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, soft.shape[1])
-    m = soft[y0:y1, x0:x1] >= 0.5
-    edt = cv2.distanceTransform((~m).astype(np.uint8), cv2.DIST_L2, 5)
-    values = np.where(edt <= 1.0, soft[y0:y1, x0:x1] - 0.5, 0.5 - edt).astype(np.float32, copy=False)
+    crop = soft[y0:y1, x0:x1]
+    # Written in place into the distance transform's own array (a bool array is 0/1 bytes):
+    # every temporary of the crop's size is a fresh allocation, most of this function's cost.
+    values = cv2.distanceTransform((crop < 0.5).view(np.uint8), cv2.DIST_L2, 5)
+    near = values <= 1.0
+    np.subtract(np.float32(0.5), values, out=values)
+    np.subtract(crop, np.float32(0.5), out=values, where=near)
     return InsideRegion(values, int(y0), int(x0), soft.shape)
 
 
