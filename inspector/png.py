@@ -92,6 +92,11 @@ def is_complete_png(path: str | os.PathLike[str]) -> bool:
 _PLAIN_CHUNKS = frozenset({b"tEXt", b"zTXt", b"iTXt", b"tIME", b"pHYs"})
 
 
+#: DEFLATE's largest expansion: 258 bytes from a 2-bit code, 1032 to 1. A header that
+#: declares more bytes than its image data can inflate to is damaged (and would reserve them).
+_MAX_INFLATE_RATIO = 1032
+
+
 def decode_grey(data: bytes) -> np.ndarray | None:
     """The pixels of a non-interlaced 8- or 16-bit grey PNG, or None for OpenCV to decode.
 
@@ -144,6 +149,9 @@ def decode_grey(data: bytes) -> np.ndarray | None:
     bpp = depth // 8
     row_bytes = width * bpp
     size = height * (row_bytes + 1)
+    data_bytes = sum(len(p) for p in parts)
+    if size > _MAX_INFLATE_RATIO * data_bytes + 64:  # libdeflate's output is reserved before inflating
+        return None
     try:
         raw = deflate.zlib_decompress(parts[0] if len(parts) == 1 else b"".join(parts), size)
     except (deflate.DeflateError, IndexError):

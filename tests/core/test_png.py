@@ -8,6 +8,7 @@ reference.
 from __future__ import annotations
 
 import struct
+import tracemalloc
 import zlib
 from pathlib import Path
 
@@ -169,3 +170,22 @@ def test_decode_image_gives_opencv_pixels_and_opencv_errors(tmp_path: Path) -> N
     bad.write_bytes(_with_crc_broken(_png(img), b"IDAT"))
     with pytest.raises(CaptureError, match=r"^bad\.png: unreadable PNG \(corrupt data\)$"):
         decode_image(bad, "bad.png", size=(20, 30))
+
+
+def test_a_header_larger_than_its_data_can_inflate_to_is_left_to_opencv() -> None:
+    img = np.zeros((4, 4), np.uint8)
+    data = bytearray(_png(img, parts=1))
+    ihdr = data.index(b"IHDR")
+    # 60000 x 60000 pixels declared by a file of some 100 bytes: refused before any memory is reserved.
+    data[ihdr + 4:ihdr + 17] = struct.pack(">IIBBBBB", 60000, 60000, 8, 0, 0, 0, 0)
+    data[ihdr + 17:ihdr + 21] = struct.pack(">I", zlib.crc32(bytes(data[ihdr:ihdr + 17])))
+    tracemalloc.start()
+    try:
+        assert decode_grey(bytes(data)) is None
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1 << 20
+    # The bound is DEFLATE's own: a black image compresses about 1000 to 1 and still decodes.
+    black = np.zeros((600, 800), np.uint8)
+    assert np.array_equal(decode_grey(_png(black, [0] * 600, parts=1)), black)
