@@ -148,6 +148,13 @@ def test_anything_else_is_left_to_opencv(case: str) -> None:
     assert decode_grey(_cases()[case]) is None
 
 
+def test_a_header_of_no_pixels_is_left_to_opencv() -> None:
+    # Width 0, and image data of exactly its three rows' filter-type bytes.
+    data = (PNG_SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", 0, 3, 8, 0, 0, 0, 0))
+            + _chunk(b"IDAT", zlib.compress(bytes(3))) + _chunk(b"IEND", b""))
+    assert decode_grey(data) is None
+
+
 def test_a_larger_image_than_its_header_says_is_left_to_opencv() -> None:
     img = _image((12, 10), np.uint8, seed=6)
     data = bytearray(_png(np.vstack([img, img])))
