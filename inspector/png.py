@@ -110,7 +110,7 @@ def decode_grey(data: bytes) -> np.ndarray | None:
     Parameters
     ----------
     data : bytes
-        A whole PNG file whose header :func:`png_header` has accepted.
+        The bytes of a PNG file (its header checked by :func:`png_header`: None when it fails).
 
     Returns
     -------
@@ -120,10 +120,11 @@ def decode_grey(data: bytes) -> np.ndarray | None:
         a chunk that could change the pixels, any damage): OpenCV decides those, and
         reports the damage.
     """
-    if len(data) < 33 or not data.startswith(PNG_SIGNATURE) or data[12:16] != b"IHDR":
+    try:
+        width, height, depth, colour = png_header(data, "", ValueError)
+    except ValueError:
         return None
-    width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", data[16:29])
-    if colour != 0 or depth not in (8, 16) or interlace or not (0 < width < 2**31 and 0 < height < 2**31):
+    if colour != 0 or depth not in (8, 16) or data[28]:  # data[28]: the header's interlace method
         return None
     import deflate  # lazy: a small C extension, needed only when a PNG is decoded
 
@@ -154,7 +155,7 @@ def decode_grey(data: bytes) -> np.ndarray | None:
         return None
     try:
         raw = deflate.zlib_decompress(parts[0] if len(parts) == 1 else b"".join(parts), size)
-    except (deflate.DeflateError, IndexError):
+    except deflate.DeflateError:
         return None
     if len(raw) != size:
         return None

@@ -155,6 +155,11 @@ def test_a_header_of_no_pixels_is_left_to_opencv() -> None:
     assert decode_grey(data) is None
 
 
+def test_a_file_without_image_data_is_left_to_opencv() -> None:
+    data = PNG_SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", 1, 1, 8, 0, 0, 0, 0)) + _chunk(b"IEND", b"")
+    assert decode_grey(data) is None
+
+
 def test_a_larger_image_than_its_header_says_is_left_to_opencv() -> None:
     img = _image((12, 10), np.uint8, seed=6)
     data = bytearray(_png(np.vstack([img, img])))
