@@ -23,7 +23,6 @@ from inspector.kernels.pose import search_pose
 from inspector.kernels.prior import SizePrior
 from inspector.kernels.silhouette import inside_map, inside_region
 from inspector.kernels.threads import map_threads
-from inspector.kernels.turn import Rays
 from inspector.model import BcpsPoints
 from inspector.params import param
 from inspector.pipeline import InspectionContext
@@ -78,7 +77,7 @@ class ContourRays:
     def __init__(self, ctx: InspectionContext, compiled: bool) -> None:
         self.ctx, self.compiled = ctx, compiled
         self._views: tuple[list[bk.View], object | None] | None = None
-        self._rays: dict[int, Rays] = {}
+        self._rays: dict[int, bk.Rays] = {}
 
     def views(self) -> tuple[list[bk.View], object | None]:
         """The silhouettes as :class:`~inspector.kernels.bcps.View` and, compiled, their stack."""
@@ -96,14 +95,14 @@ class ContourRays:
             self._views = (views, stack)
         return self._views
 
-    def camera(self, i: int) -> Rays:
-        """Camera ``i``'s rays (:class:`~inspector.kernels.turn.Rays`) and the depth range
+    def camera(self, i: int) -> bk.Rays:
+        """Camera ``i``'s rays (:class:`~inspector.kernels.bcps.Rays`) and the depth range
         each can meet the reconstruction in."""
         if not self._rays:  # all cameras on the first ask, in parallel (the work releases the GIL)
             self._rays = dict(enumerate(map_threads(self._build, range(len(self.ctx.capture.rig.cameras)))))
         return self._rays[i]
 
-    def _build(self, i: int) -> Rays:
+    def _build(self, i: int) -> bk.Rays:
         cam, contour = self.ctx.capture.rig.cameras[i], self.ctx.need("silhouettes", "bcps")[i].contour
         recon = self.ctx.need("reconstruction", "bcps")
         origin, dirs = cam.rays(contour)
@@ -111,9 +110,9 @@ class ContourRays:
         # update can move a grazing ray's optimum far along it: every pass searches it all.
         t0, t1 = bk.ray_ranges(cam, contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm),
                                compiled=self.compiled)
-        return Rays(origin, dirs, t0, t1)
+        return bk.Rays(origin, dirs, t0, t1)
 
-    def all(self) -> list[Rays]:
+    def all(self) -> list[bk.Rays]:
         """The rays of every camera with a contour, in camera order."""
         return [self.camera(i) for i, s in enumerate(self.ctx.need("silhouettes", "bcps")) if len(s.contour)]
 
@@ -155,19 +154,17 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
     levels = p.refine_levels - 1 if sparse and p.refine_levels > 1 else p.refine_levels
     sub = slice(None, None, bk.sparse_stride([len(s.contour) for s in sils], p.refine_stride, p.refine_rays) if sparse else 1)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
-    for i, sil in enumerate(sils):
-        if len(sil.contour) == 0:
-            continue
-        origin, dirs, r0, r1 = rays.camera(i)
-        pts, dev, seg, ok = bk.select_on_rays(
-            origin, dirs[sub], views, i, sd_fn, bounds, stack=stack, step_mm=p.step_mm, refine_levels=levels,
-            tolerance_px=p.tolerance_px, accept_px=accept, violation_weight=p.violation_weight, t_range=(r0[sub], r1[sub]),
-            mesh=ref.distance if stack is not None else None, pose=place, sd_scale=prior.scale, segments=not sparse,
-        )
+    cams = [i for i, sil in enumerate(sils) if len(sil.contour)]
+    picked = bk.select_on_camera_rays(  # every camera's rays in one call
+        [(i, rays.camera(i).take(sub)) for i in cams], views, sd_fn, bounds, stack=stack, step_mm=p.step_mm, refine_levels=levels, tolerance_px=p.tolerance_px,
+        accept_px=accept, violation_weight=p.violation_weight, mesh=ref.distance if stack is not None else None,
+        pose=place, sd_scale=prior.scale, segments=not sparse,
+    )
+    for i, (pts, dev, seg, ok) in zip(cams, picked):
         out["points"].append(pts[ok])
         out["deviation"].append(ref.signed_distance(pts[ok], nominal) if sized else dev[ok])
         out["camera"].append(np.full(int(ok.sum()), i, np.int32))
-        out["pixel"].append(sil.contour[sub][ok])
+        out["pixel"].append(sils[i].contour[sub][ok])
         out["segment"].append(seg[ok])
     return _assemble(out, "ray")
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -24,7 +25,8 @@ from inspector.kernels.ray_search import ray_min_search
 from inspector.kernels.silhouette import InsideRegion, sample_bilinear
 from inspector.model import Camera
 
-__all__ = ["confidence", "ray_min_distance", "ray_ranges", "View", "hull_violation", "hull_membership", "select_on_rays", "select_on_surface", "ray_box", "sparse_stride"]
+__all__ = ["confidence", "ray_min_distance", "ray_ranges", "Rays", "View", "hull_violation", "hull_membership", "select_on_rays",
+           "select_on_camera_rays", "select_on_surface", "ray_box", "sparse_stride"]
 
 SignedDistance = Callable[[np.ndarray], np.ndarray]
 
@@ -108,6 +110,29 @@ def hull_membership(X: np.ndarray, views: Sequence[View], tolerance_px: float = 
     return hull_violation(X, views, tolerance_px) <= tolerance_px
 
 
+class Rays(NamedTuple):
+    """One camera's rays through its contour points, world frame.
+
+    Attributes
+    ----------
+    origin : (3,) float
+        The camera centre, mm.
+    dirs : (M, 3) float
+        Unit directions.
+    t0, t1 : (M,) float
+        Depth range along each ray where it can meet the part, mm (``t0 > t1``: none).
+    """
+
+    origin: np.ndarray
+    dirs: np.ndarray
+    t0: np.ndarray
+    t1: np.ndarray
+
+    def take(self, rows: slice | np.ndarray) -> Rays:
+        """The rays ``rows`` (a slice, indices or a mask)."""
+        return Rays(self.origin, self.dirs[rows], self.t0[rows], self.t1[rows])
+
+
 def ray_box(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Entry and exit parameters of rays ``origin + t * dirs`` in an axis-aligned box.
 
@@ -134,14 +159,19 @@ def ray_box(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tuple[n
 
 def _lipschitz_px_per_mm(views: Sequence[View], bounds: np.ndarray) -> float:
     """Upper bound of how fast a point's projection moves, px per mm, inside ``bounds``."""
+    return max(0.0, *_view_speeds(views, bounds))
+
+
+def _view_speeds(views: Sequence[View], bounds: np.ndarray) -> list[float]:
+    """Per view, the bound of :func:`_lipschitz_px_per_mm`: focal length over the least depth
+    of ``bounds``' sphere, px per mm."""
     centre = bounds.mean(axis=0)
     radius = 0.5 * float(np.linalg.norm(bounds[1] - bounds[0]))
-    worst = 0.0
+    out = []
     for v in views:
         depth = float(np.linalg.norm(v.camera.centre - centre)) - radius
-        f = float(max(v.camera.K[0, 0], v.camera.K[1, 1]))
-        worst = max(worst, f / max(depth, 1e-3))
-    return worst
+        out.append(float(max(v.camera.K[0, 0], v.camera.K[1, 1])) / max(depth, 1e-3))
+    return out
 
 
 def _cost(sd, viol, tol, weight):
@@ -403,27 +433,79 @@ def select_on_rays(
     valid : (M,) bool
     """
     M = len(dirs)
-    out = (np.full((M, 3), np.nan), np.full(M, np.nan), np.zeros(M), np.zeros(M, bool))
-    t0, t1 = ray_box(origin, dirs, bounds)
-    if t_range is not None:
-        t0 = np.maximum(t0, t_range[0])
-        t1 = np.minimum(t1, t_range[1])
-    hit = np.flatnonzero(t1 > t0)
-    others = [v for i, v in enumerate(views) if i != skip]
-    if hit.size == 0 or not others:
-        return out
-    hull = _hull_of(views, skip, stack)
-    lip = _lipschitz_px_per_mm(others, bounds)
-    weight = violation_weight / lip  # mm per pixel of violation
+    t0, t1 = t_range if t_range is not None else (np.full(M, -np.inf), np.full(M, np.inf))
+    return select_on_camera_rays(
+        [(skip, Rays(origin, dirs, t0, t1))], views, sd_fn, bounds, step_mm=step_mm, refine_levels=refine_levels,
+        refine_samples=refine_samples, tolerance_px=tolerance_px, accept_px=accept_px,
+        violation_weight=violation_weight, max_points=max_points, stack=stack, mesh=mesh, pose=pose,
+        sd_scale=sd_scale, segments=segments,
+    )[0]
+
+
+class _Camera(NamedTuple):
+    """One camera's share of :func:`select_on_camera_rays`: its rays with a non-empty range
+    ``hit`` (indices into ``dirs``), their ranges ``t0, t1`` (M,) and its results ``out``,
+    filled in place."""
+
+    skip: int
+    origin: np.ndarray
+    dirs: np.ndarray
+    hit: np.ndarray
+    t0: np.ndarray
+    t1: np.ndarray
+    lip: float  # bound of the hull violation's rate along a ray, px / mm
+    weight: float  # cost of one pixel of hull violation, mm
+    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def select_on_camera_rays(
+    rays: Sequence[tuple[int, Rays]], views: Sequence[View], sd_fn: SignedDistance, bounds: np.ndarray, *,
+    step_mm: float = 0.25, refine_levels: int = 2, refine_samples: int = 11, tolerance_px: float = 0.05,
+    accept_px: float = 1.0, violation_weight: float = 3.0, max_points: int = 1_000_000, stack: object | None = None,
+    mesh: object | None = None, pose: np.ndarray | None = None, sd_scale: float = 1.0, segments: bool = True,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """:func:`select_on_rays` for the rays of several cameras at once.
+
+    Parameters
+    ----------
+    rays : sequence of (int, Rays)
+        Each camera's index in ``views`` (its ``skip``) and its rays, whose ``t0, t1`` are
+        the ``t_range``.
+    views, sd_fn, bounds, step_mm, refine_levels, refine_samples, tolerance_px, accept_px,
+    violation_weight, max_points, stack, mesh, pose, sd_scale, segments
+        As :func:`select_on_rays`. The compiled search (``stack``, ``mesh`` and ``pose``)
+        answers every camera's rays in one call: the same points as one call per camera,
+        without a parallel region's start and end per camera.
+
+    Returns
+    -------
+    list of (points, deviation, segment_mm, valid)
+        :func:`select_on_rays`'s results for each entry of ``rays``, in order.
+    """
     s = _RaySearch(step_mm, refine_levels, refine_samples, tolerance_px, accept_px, violation_weight, max_points)
-    if stack is not None and mesh is not None and pose is not None:
-        _select_compiled(origin, dirs, views, skip, sd_fn, bounds, hit, t0, t1, lip, weight, s, stack, mesh, pose,
-                         sd_scale, out, segments)
+    speeds = _view_speeds(views, bounds)
+    outs, todo = [], []
+    for skip, r in rays:
+        M = len(r.dirs)
+        out = (np.full((M, 3), np.nan), np.full(M, np.nan), np.zeros(M), np.zeros(M, bool))
+        outs.append(out)
+        t0, t1 = ray_box(r.origin, r.dirs, bounds)
+        t0, t1 = np.maximum(t0, r.t0), np.minimum(t1, r.t1)
+        hit = np.flatnonzero(t1 > t0)
+        others = [v for i, v in enumerate(speeds) if i != skip]
+        if hit.size and others:
+            lip = max(0.0, *others)
+            todo.append(_Camera(skip, r.origin, r.dirs, hit, t0, t1, lip, violation_weight / lip, out))
+    if todo and stack is not None and mesh is not None and pose is not None:
+        _select_compiled(todo, views, sd_fn, bounds, s, stack, mesh, pose, sd_scale, segments)
     else:
-        _select_sampled(origin, dirs, hit, t0, t1, hull, sd_fn, lip, weight, s, out)
+        for c in todo:
+            _select_sampled(c.origin, c.dirs, c.hit, c.t0, c.t1, _hull_of(views, c.skip, stack), sd_fn, c.lip, c.weight,
+                            s, c.out)
     if not segments:
-        out[2][:] = np.nan
-    return out
+        for c in todo:
+            c.out[2][:] = np.nan
+    return outs
 
 
 def _hull_of(views: Sequence[View], skip: int, stack: object | None) -> Callable[[np.ndarray, float], np.ndarray]:
@@ -444,48 +526,39 @@ def _hull_of(views: Sequence[View], skip: int, stack: object | None) -> Callable
 
 
 def _select_compiled(
-    origin: np.ndarray, dirs: np.ndarray, views: Sequence[View], skip: int, sd_fn: SignedDistance, bounds: np.ndarray,
-    hit: np.ndarray, t0: np.ndarray, t1: np.ndarray, lip: float, weight: float, s: _RaySearch, stack: object,
-    mesh: object, pose: np.ndarray, sd_scale: float, out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-    segments: bool,
+    todo: Sequence[_Camera], views: Sequence[View], sd_fn: SignedDistance, bounds: np.ndarray, s: _RaySearch,
+    stack: object, mesh: object, pose: np.ndarray, sd_scale: float, segments: bool,
 ) -> None:
-    """:func:`select_on_rays` by the compiled search (:func:`inspector.kernels.bcps_jit.select_rays`)
-    on the rays ``hit``; the rays it flags (a distance outside the index's band) take the
-    numpy path with ``sd_fn``.
-
-    Parameters
-    ----------
-    hit : (H,) int
-        Rays with a non-empty range ``t0 < t1`` (mm from ``origin``, (M,) each).
-    lip : float
-        Bound of the hull violation's rate along a ray, px / mm.
-    weight : float
-        Cost of one pixel of hull violation, mm.
-    out : (points (M, 3), deviation (M,), segment_mm (M,), valid (M,))
-        :func:`select_on_rays`'s results, filled in place for the rays ``hit``.
-    """
+    """:func:`select_on_camera_rays` by the compiled search
+    (:func:`inspector.kernels.bcps_jit.select_rays`), on every camera's rays ``hit`` at
+    once; the rays it flags (a distance outside the index's band) take the numpy path with
+    ``sd_fn``. Each camera's results are filled into its ``out``."""
     from inspector.kernels import bcps_jit
 
-    points, deviation, segment, valid = out
     tb, vb, sb, seg, oob = bcps_jit.select_rays(
-        origin, dirs[hit], t0[hit], t1[hit], stack, skip, mesh, pose, step_mm=s.step_mm,
+        np.array([c.origin for c in todo], dtype=np.float64),
+        np.concatenate([np.full(len(c.hit), e, np.int64) for e, c in enumerate(todo)]),
+        np.concatenate([c.dirs[c.hit] for c in todo]), np.concatenate([c.t0[c.hit] for c in todo]),
+        np.concatenate([c.t1[c.hit] for c in todo]), stack, [c.skip for c in todo], mesh, pose, step_mm=s.step_mm,
         refine_levels=s.refine_levels, refine_samples=s.refine_samples, tolerance_px=s.tolerance_px,
-        accept_px=s.accept_px, weight=weight, lip=lip, bounds=bounds, sd_scale=sd_scale, segments=segments,
+        accept_px=s.accept_px, weights=[c.weight for c in todo], lips=[c.lip for c in todo], bounds=bounds,
+        sd_scale=sd_scale, segments=segments,
     )
-    ok = ~oob & (vb <= s.accept_px) & np.isfinite(sb)
-    sel = hit[ok]
-    points[sel] = origin + tb[ok, None] * dirs[sel]
-    deviation[sel] = sb[ok]
-    valid[sel] = True
-    segment[hit[~oob]] = seg[~oob]
-    if oob.any():
-        rest = hit[oob]
-        p2, d2, s2, v2 = select_on_rays(
-            origin, dirs[rest], views, skip, sd_fn, bounds, step_mm=s.step_mm, refine_levels=s.refine_levels,
-            refine_samples=s.refine_samples, tolerance_px=s.tolerance_px, accept_px=s.accept_px,
-            violation_weight=s.violation_weight, max_points=s.max_points, stack=stack, t_range=(t0[rest], t1[rest]),
-        )
-        points[rest], deviation[rest], segment[rest], valid[rest] = p2, d2, s2, v2
+    end = 0
+    for c in todo:
+        part = slice(end, end + len(c.hit))
+        end = part.stop
+        points, deviation, segment, valid = c.out
+        o = oob[part]
+        ok = ~o & (vb[part] <= s.accept_px) & np.isfinite(sb[part])
+        sel = c.hit[ok]
+        points[sel] = c.origin + tb[part][ok, None] * c.dirs[sel]
+        deviation[sel] = sb[part][ok]
+        valid[sel] = True
+        segment[c.hit[~o]] = seg[part][~o]
+        if o.any():
+            _select_sampled(c.origin, c.dirs, c.hit[o], c.t0, c.t1, _hull_of(views, c.skip, stack), sd_fn, c.lip,
+                            c.weight, s, c.out)
 
 
 def _select_sampled(

@@ -148,10 +148,15 @@ def _distances_along(origin, d0, d1, d2, a0, step, Ai, sc, tri, pn, lo, h, dims,
 
 
 @numba.njit(parallel=True, cache=True, nogil=True)
-def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border, skip, lc,
+def _select_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border, skips, lc,
                    tri, pn, lo, h, dims, start, items, dc, Ai, sc,
-                   step, levels, offsets, tol, accept, weight, lip, segments,
+                   step, levels, offsets, tol, accept, weights, lips, segments,
                    t_out, v_out, s_out, seg_out, oob_out):
+    # One call for the rays of every camera of a pass (issue 26: sixteen calls, one per
+    # camera, each a parallel region of a few milliseconds, lost a seventh of two threads'
+    # time to the regions' start and end, and the Python between them). Ray r goes through
+    # the contour of camera skips[entry[r]], from origins[entry[r]]; lips and weights are
+    # that camera's.
     M = dirs.shape[0]
     C = K.shape[0]
     nref = offsets.shape[0]
@@ -167,6 +172,11 @@ def _select_kernel(origin, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border
         a1 = t1[r]
         if not (a1 > a0):
             continue
+        e = entry[r]
+        origin = origins[e]
+        skip = skips[e]
+        lip = lips[e]
+        weight = weights[e]
         d0 = dirs[r, 0]
         d1 = dirs[r, 1]
         d2 = dirs[r, 2]
@@ -383,14 +393,17 @@ def camera_speed(stack: CameraStack, bounds: np.ndarray) -> np.ndarray:
     return out
 
 
-def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refine_levels, refine_samples,
-                tolerance_px, accept_px, weight, lip, bounds, sd_scale=1.0, segments=True):
-    """Run the fused search on rays ``origin + t * dirs`` (M, 3) over ``[t0, t1]`` (M,).
+def select_rays(origins, entry, dirs, t0, t1, stack, skips, mesh, pose, *, step_mm, refine_levels, refine_samples,
+                tolerance_px, accept_px, weights, lips, bounds, sd_scale=1.0, segments=True):
+    """Run the fused search on rays ``origins[entry] + t * dirs`` (M, 3) over ``[t0, t1]`` (M,),
+    the rays of several cameras at once.
 
-    Parameters are those of :func:`inspector.kernels.bcps.select_on_rays` (``weight`` in
-    mm per pixel of violation, ``lip`` the projection's Lipschitz bound, px per mm);
-    ``bounds`` (2, 3) the box of the rays' samples, mm; ``stack`` a
-    :class:`~inspector.kernels.hull_jit.CameraStack`, ``mesh`` a
+    Parameters are those of :func:`inspector.kernels.bcps.select_on_rays`, per camera:
+    ``origins`` (E, 3) the cameras' centres, mm, ``skips`` (E,) int their indices in
+    ``stack``, ``weights`` (E,) their cost of a pixel of violation, mm, and ``lips`` (E,)
+    their bound of the projection's rate, px per mm; ``entry`` (M,) int the camera
+    (0 .. E-1) each ray belongs to. ``bounds`` (2, 3) is the box of the rays' samples, mm;
+    ``stack`` a :class:`~inspector.kernels.hull_jit.CameraStack`, ``mesh`` a
     :class:`~inspector.kernels.meshdist.MeshDistance` of the reference and ``pose`` (4, 4)
     reference -> world, or any invertible affine placement: the signed distance of a world
     point ``x`` is then ``sd_scale * mesh(pose^-1 x)`` (a scaled reference,
@@ -412,13 +425,16 @@ def select_rays(origin, dirs, t0, t1, stack, skip, mesh, pose, *, step_mm, refin
     if M:
         Ai = np.ascontiguousarray(np.linalg.inv(np.asarray(pose, dtype=np.float64))[:3])
         _select_kernel(
-            np.ascontiguousarray(origin, dtype=np.float64), np.ascontiguousarray(dirs, dtype=np.float64),
+            np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3), np.ascontiguousarray(entry, dtype=np.int64),
+            np.ascontiguousarray(dirs, dtype=np.float64),
             np.ascontiguousarray(t0, dtype=np.float64), np.ascontiguousarray(t1, dtype=np.float64),
-            stack.K, stack.R, stack.t, stack.dist, stack.maps, stack.sizes, stack.open_border, int(skip),
+            stack.K, stack.R, stack.t, stack.dist, stack.maps, stack.sizes, stack.open_border,
+            np.ascontiguousarray(skips, dtype=np.int64),
             MAP_LIPSCHITZ * camera_speed(stack, np.asarray(bounds, float)),
             *mesh.args(), Ai, float(sd_scale),
             float(step_mm), int(refine_levels), np.linspace(-1.0, 1.0, int(refine_samples)), float(tolerance_px),
-            float(accept_px), float(weight), float(lip), bool(segments), *out, oob,
+            float(accept_px), np.ascontiguousarray(weights, dtype=np.float64), np.ascontiguousarray(lips, dtype=np.float64),
+            bool(segments), *out, oob,
         )
     return out[0], out[1], out[2], out[3], oob
 

@@ -38,10 +38,11 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 
 from inspector.kernels.axis import AxisScan, TurnZone, pose_confidence, scan_about_axis
+from inspector.kernels.bcps import Rays
 from inspector.kernels.prior import SizePrior, fit_size_prior
 from inspector.kernels.registration import refine_on_points
 from inspector.kernels.rigid import axis_turn_deg, rotation_deg
-from inspector.kernels.turn import Rays, TurnJudge, TurnOptions, judge_turns, polish_turn
+from inspector.kernels.turn import TurnJudge, TurnOptions, judge_turns, polish_turn
 from inspector.model import Alignment, BcpsPoints, PoseConfidence
 
 __all__ = ["PoseOptions", "PoseReference", "Select", "search_pose"]

@@ -24,19 +24,18 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 
 from inspector.kernels.axis import AMBIGUOUS_POINTS, AxisScan, TurnZone, pose_confidence
-from inspector.kernels.bcps import ray_min_distance
+from inspector.kernels.bcps import Rays, ray_min_distance
 from inspector.kernels.prior import SizePrior
 from inspector.kernels.rigid import turns_about_axis
 from inspector.kernels.robust import tukey_loss
 from inspector.model import PoseConfidence
 
-__all__ = ["Rays", "TurnJudge", "TurnOptions", "basins", "judge_turns", "polish_turn", "search_turn", "silhouette_scan",
+__all__ = ["TurnJudge", "TurnOptions", "basins", "judge_turns", "polish_turn", "search_turn", "silhouette_scan",
            "turn", "turned"]
 
 
@@ -85,25 +84,6 @@ class TurnOptions:
     resettle_deg: float = 3.0
     polish_deg: float = 1.5
     xatol_deg: float = 0.02
-
-
-class Rays(NamedTuple):
-    """One camera's rays through its contour points, world frame.
-
-    Attributes
-    ----------
-    origin : (3,) float
-        The camera centre, mm.
-    dirs : (M, 3) float
-        Unit directions.
-    t0, t1 : (M,) float
-        Depth range along each ray where it can meet the part, mm (``t0 > t1``: none).
-    """
-
-    origin: np.ndarray
-    dirs: np.ndarray
-    t0: np.ndarray
-    t1: np.ndarray
 
 
 def turn(axis: np.ndarray, centre: np.ndarray, angle_deg: float) -> np.ndarray:

@@ -58,11 +58,11 @@ def _grazed(P: np.ndarray) -> np.ndarray:
 
 
 def rays(pose: np.ndarray, cameras: int = 6, heights: int = 5, distance_mm: float = 400.0) -> list:
-    """Every camera's contour rays (:class:`~inspector.kernels.turn.Rays`) of the D-shaft
+    """Every camera's contour rays (:class:`~inspector.kernels.bcps.Rays`) of the D-shaft
     placed by ``pose`` (4, 4, shaft -> world): ``cameras`` cameras around the axis, rays
     through both contour lines at ``heights`` heights; each ray's range is +-15 mm about
     its grazing point."""
-    from inspector.kernels.turn import Rays
+    from inspector.kernels.bcps import Rays
 
     out = []
     for k in range(cameras):

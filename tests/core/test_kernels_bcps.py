@@ -20,13 +20,16 @@ def _look_at(centre):
     return R, -R @ centre
 
 
-def sphere_views(radius=10.0, n=6, size=256, f=1000.0, dist=400.0, ss=8, dist_coeffs=None):
-    """Cameras around the origin and exact anti-aliased sphere silhouettes (as inside-maps)."""
+def sphere_views(radius=10.0, n=6, size=256, f=1000.0, dist=400.0, ss=8, dist_coeffs=None, only=None):
+    """Cameras around the origin and exact anti-aliased sphere silhouettes (as inside-maps);
+    ``only``: just that camera's view."""
     rng = np.random.default_rng(3)
     dirs = rng.normal(size=(n, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     views = []
     for i, d in enumerate(dirs):
+        if only is not None and i != only:
+            continue
         R, t = _look_at(d * dist)
         K = np.array([[f, 0, (size - 1) / 2], [0, f, (size - 1) / 2], [0, 0, 1]])
         cam = Camera(f"c{i}", size, size, K, dist_coeffs if dist_coeffs is not None else np.zeros(5), R, t)
@@ -191,6 +194,72 @@ def test_compiled_search_equals_numpy_search(views, band_mm, segments):
         assert np.isnan(b[2]).all()
     if band_mm is not None:
         assert sum(calls) > 0  # some rays left the band and took the numpy path
+
+
+def _rim_rays(cam, n, radius=10.0, noise=0.0, seed=0):
+    """Rays of camera ``cam`` through the sphere's rim (``noise`` px on the contour)."""
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    axis = -cam.centre / np.linalg.norm(cam.centre)
+    e1 = np.cross(axis, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    uv, _ = cam.project(radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2))
+    uv += np.random.default_rng(seed).normal(scale=noise, size=uv.shape)
+    return cam.rays(uv)
+
+
+@pytest.mark.parametrize("segments", [True, False])
+def test_all_cameras_in_one_call_select_what_each_camera_alone_selects(views, segments):
+    """One compiled call for several cameras' rays (each skipping its own silhouette, with its
+    own bound and weight) gives each camera exactly what a call for that camera alone gives;
+    rays that leave the distance index's band take the numpy path, camera by camera; a
+    camera without rays and rays with an empty range give no point."""
+    import trimesh
+
+    from inspector.kernels.hull_jit import stack_views
+    from inspector.kernels.meshdist import MeshDistance
+
+    ref = trimesh.creation.box(extents=(19.0, 20.5, 19.5))
+    md = MeshDistance(ref.vertices, ref.faces, band_mm=0.6)
+    pose = np.eye(4)
+    pose[:3, 3] = [0.1, -0.05, 0.0]
+
+    def sd(X):
+        return md(X - pose[:3, 3])
+
+    # camera 4 nearer than the others: its bound of the projection's rate, and with it its
+    # tolerance and violation weight, differ from theirs
+    views = [*views[:4], *sphere_views(dist=300.0, only=4), *views[5:]]
+    stack = stack_views(views)
+    bounds = np.array([[-12.0] * 3, [12.0] * 3])
+    cams = [4, 0, 2, 5]
+    rays = []
+    for k, i in enumerate(cams):
+        origin, dirs = _rim_rays(views[i].camera, 150 + 40 * k, noise=0.3, seed=k)
+        near = np.linalg.norm(origin)
+        t0, t1 = np.full(len(dirs), near - 20.0), np.full(len(dirs), near + 20.0)
+        t1[::7] = t0[::7] - 1.0  # an empty range
+        rays.append((i, bk.Rays(origin, dirs, t0, t1)))
+    rays.append((1, bk.Rays(views[1].camera.centre, np.zeros((0, 3)), np.zeros(0), np.zeros(0))))
+    kw = dict(step_mm=0.25, refine_levels=3, stack=stack, mesh=md, pose=pose, segments=segments)
+    calls = []
+
+    def box_distance(X):  # exact, beyond the band
+        calls.append(len(X))
+        q = np.abs(X) - np.array([19.0, 20.5, 19.5]) / 2
+        return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
+
+    md.fallback = box_distance
+    together = bk.select_on_camera_rays(rays, views, sd, bounds, **kw)
+    assert sum(calls) > 0  # some rays left the band
+    assert len(together) == len(rays)
+    for (i, r), got in zip(rays, together):
+        alone = bk.select_on_rays(r.origin, r.dirs, views, i, sd, bounds, t_range=(r.t0, r.t1), **kw)
+        for a, b in zip(alone, got):
+            np.testing.assert_array_equal(b, a)
+        if len(r.dirs):
+            assert got[3].mean() > 0.5 and not got[3][::7].any()
+    assert len(together[-1][0]) == 0
 
 
 def test_search_by_distance_selects_what_the_scan_selects(views):
