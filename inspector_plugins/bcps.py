@@ -9,6 +9,7 @@ module only adapts the inspection context to the kernels.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -162,11 +163,12 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
     )
     for i, (pts, dev, seg, ok) in zip(cams, picked):
         out["points"].append(pts[ok])
-        out["deviation"].append(ref.signed_distance(pts[ok], nominal) if sized else dev[ok])
+        out["deviation"].append(dev[ok])
         out["camera"].append(np.full(int(ok.sum()), i, np.int32))
         out["pixel"].append(sils[i].contour[sub][ok])
         out["segment"].append(seg[ok])
-    return _assemble(out, "ray")
+    sel = _assemble(out, "ray")
+    return dataclasses.replace(sel, deviation=ref.signed_distance(sel.points, nominal)) if sized else sel
 
 
 def _assemble(out: dict[str, list[np.ndarray]], method: str) -> BcpsPoints:
