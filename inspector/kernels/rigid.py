@@ -26,8 +26,6 @@ import numpy as np
 import open3d as o3d
 from scipy.spatial.transform import Rotation
 
-from inspector.kernels.robust import tukey
-
 __all__ = [
     "POKE_TOLERANCE", "REF_SAMPLES", "GaussNewtonStep", "RefMesh", "as_mesh", "as_points", "as_pose",
     "axis_turn_deg", "inverse", "orthonormalize", "poking", "positive", "rigid_transform", "robust_fit", "rodrigues",
@@ -295,31 +293,17 @@ class GaussNewtonStep:
             if n_keep < len(W):
                 self.keep = np.sort(np.argsort(self.score, kind="stable")[:n_keep])
                 k = self.keep
-                W, q, n, d, r, cutoff, floor = W[k], q[k], n[k], d[k], r[k], cutoff[k], floor[k]
+                W, q, c, n, r, cutoff, floor = W[k], q[k], c[k], n[k], r[k], cutoff[k], floor[k]
         target = np.maximum(floor, np.minimum(cutoff, _TUKEY_C * _MAD_SIGMA * np.median(r, axis=1)))
         self.cutoff = np.maximum(target, shrink * cutoff)  # shrink gradually (inf stays inf)
         self.cutoff[~np.isfinite(cutoff)] = target[~np.isfinite(cutoff)]
         self.settled = self.cutoff <= target
+        from inspector.kernels.gn_jit import normal_equations  # lazy: Numba only where a fit runs
+
+        H, b, q0, scale, self.cost, sw, count = normal_equations(q, c, n, r, self.cutoff, W[:, :3, :3], normals,
+                                                                 _NORMAL_COS)
         cutoff = self.cutoff
-        # Gradient of the distance field: direction from the closest point, or the
-        # triangle normal for points (numerically) on the surface.
-        on_surface = r <= 1e-6
-        g = np.where(on_surface[..., None], n, d / np.where(on_surface, 1.0, r)[..., None])
-        w = tukey(r, cutoff[:, None])
-        if normals is not None:
-            nq = np.matmul(normals[None], W[:, :3, :3].transpose(0, 2, 1))
-            w = w * (np.sum(nq * n, axis=2) > _NORMAL_COS)
-        sw = w.sum(axis=1)
-        ok = np.count_nonzero(w, axis=1) >= 6  # fewer cannot fix 6 degrees of freedom
-        sw = np.where(sw > 0, sw, 1.0)
-        q0 = np.matmul(w[:, None, :], q)[:, 0] / sw[:, None]
-        lever = q - q0[:, None, :]
-        scale = np.sqrt(np.sum(w * np.sum(lever * lever, axis=2), axis=1) / sw)
-        scale = np.maximum(scale, 1e-9)
-        J = np.concatenate([np.cross(lever, g) / scale[:, None, None], g], axis=2)  # (K, N, 6)
-        Jw = J * w[..., None]
-        H = np.matmul(Jw.transpose(0, 2, 1), J)
-        b = np.matmul(Jw.transpose(0, 2, 1), r[..., None])[..., 0]
+        ok = count >= 6  # fewer cannot fix 6 degrees of freedom
         tr = np.trace(H, axis1=1, axis2=2)
         H = H + np.eye(6) * (1e-9 * tr / 6.0 + 1e-12)[:, None, None]
         xi = -np.linalg.solve(H, b[..., None])[..., 0]
@@ -329,7 +313,6 @@ class GaussNewtonStep:
         size = np.linalg.norm(xi, axis=1)
         xi *= np.minimum(1.0, cutoff / np.maximum(size, 1e-300))[:, None]
         self.move = np.sqrt(np.maximum(np.sum(xi * np.matmul(H, xi[..., None])[..., 0], axis=1), 0.0) / sw)
-        self.cost = np.sum(w * r * r, axis=1) / sw
         dR = rodrigues(xi[:, :3] / scale[:, None])
         D = np.zeros_like(W)
         D[:, :3, :3] = dR
