@@ -157,14 +157,10 @@ def ray_box(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tuple[n
     return np.maximum(lo, 0.0), hi
 
 
-def _lipschitz_px_per_mm(views: Sequence[View], bounds: np.ndarray) -> float:
-    """Upper bound of how fast a point's projection moves, px per mm, inside ``bounds``."""
-    return max(0.0, *_view_speeds(views, bounds))
-
-
 def _view_speeds(views: Sequence[View], bounds: np.ndarray) -> list[float]:
-    """Per view, the bound of :func:`_lipschitz_px_per_mm`: focal length over the least depth
-    of ``bounds``' sphere, px per mm."""
+    """Per view, an upper bound of how fast a point's projection moves inside ``bounds``:
+    the focal length over the least depth of ``bounds``' sphere, px per mm (a selection's
+    bound is the largest over the cameras other than its own)."""
     centre = bounds.mean(axis=0)
     radius = 0.5 * float(np.linalg.norm(bounds[1] - bounds[0]))
     out = []

@@ -321,7 +321,7 @@ def test_a_true_point_in_a_hull_sliver_thinner_than_the_coarse_step_is_found(vie
     true point (the binary shaft's false reject)."""
     others = [v for i, v in enumerate(views) if i != 0]
     bounds = np.array([[-1.0, -1.0, 0.0], [1.0, 1.0, 12.0]])
-    lip = bk._lipschitz_px_per_mm(others, bounds)
+    lip = max(bk._view_speeds(others, bounds))
     centre, wide = 5.125, (8.0, 10.0)  # coarse samples at 5.0 and 5.25: 0.125 mm from the sliver
 
     def gap(t):
