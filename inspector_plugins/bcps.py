@@ -157,9 +157,9 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
     cams = [i for i, sil in enumerate(sils) if len(sil.contour)]
     picked = bk.select_on_camera_rays(  # every camera's rays in one call
-        [(i, rays.camera(i).take(sub)) for i in cams], views, sd_fn, bounds, stack=stack, step_mm=p.step_mm, refine_levels=levels, tolerance_px=p.tolerance_px,
-        accept_px=accept, violation_weight=p.violation_weight, mesh=ref.distance if stack is not None else None,
-        pose=place, sd_scale=prior.scale, segments=not sparse,
+        [(i, rays.camera(i).take(sub)) for i in cams], views, sd_fn, bounds, stack=stack, step_mm=p.step_mm,
+        refine_levels=levels, tolerance_px=p.tolerance_px, accept_px=accept, violation_weight=p.violation_weight,
+        mesh=ref.distance if stack is not None else None, pose=place, sd_scale=prior.scale, segments=not sparse,
     )
     for i, (pts, dev, seg, ok) in zip(cams, picked):
         out["points"].append(pts[ok])

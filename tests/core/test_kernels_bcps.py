@@ -136,6 +136,18 @@ def test_confidence_from_segment_length():
     assert np.allclose(c, [1.0, 0.5, 0.1])
 
 
+def _rim_rays(cam, n, radius=10.0, noise=0.0, seed=0):
+    """Rays of camera ``cam`` through the sphere's rim (``noise`` px on the contour)."""
+    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    axis = -cam.centre / np.linalg.norm(cam.centre)
+    e1 = np.cross(axis, [0.0, 0.0, 1.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    uv, _ = cam.project(radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2))
+    uv += np.random.default_rng(seed).normal(scale=noise, size=uv.shape)
+    return cam.rays(uv)
+
+
 @pytest.mark.parametrize("band_mm", [None, 0.3])
 @pytest.mark.parametrize("segments", [True, False])
 def test_compiled_search_equals_numpy_search(views, band_mm, segments):
@@ -169,16 +181,7 @@ def test_compiled_search_equals_numpy_search(views, band_mm, segments):
     def sd(X):
         return md((X - pose[:3, 3]) @ pose[:3, :3])
 
-    cam = views[1].camera
-    ang = np.linspace(0, 2 * np.pi, 300, endpoint=False)
-    c = cam.centre
-    axis = -c / np.linalg.norm(c)
-    e1 = np.cross(axis, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
-    rim = 10.0 * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
-    uv, _ = cam.project(rim)
-    origin, dirs = cam.rays(uv)
+    origin, dirs = _rim_rays(views[1].camera, 300)
     bounds = np.array([[-12.0] * 3, [12.0] * 3])
     stack = stack_views(views)
     kw = dict(step_mm=0.25, refine_levels=3, stack=stack)
@@ -194,18 +197,6 @@ def test_compiled_search_equals_numpy_search(views, band_mm, segments):
         assert np.isnan(b[2]).all()
     if band_mm is not None:
         assert sum(calls) > 0  # some rays left the band and took the numpy path
-
-
-def _rim_rays(cam, n, radius=10.0, noise=0.0, seed=0):
-    """Rays of camera ``cam`` through the sphere's rim (``noise`` px on the contour)."""
-    ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
-    axis = -cam.centre / np.linalg.norm(cam.centre)
-    e1 = np.cross(axis, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
-    uv, _ = cam.project(radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2))
-    uv += np.random.default_rng(seed).normal(scale=noise, size=uv.shape)
-    return cam.rays(uv)
 
 
 @pytest.mark.parametrize("segments", [True, False])
@@ -279,16 +270,7 @@ def test_search_by_distance_selects_what_the_scan_selects(views):
     def sd(X):
         return md(X)
 
-    cam = views[2].camera
-    ang = np.linspace(0, 2 * np.pi, 400, endpoint=False)
-    axis = -cam.centre / np.linalg.norm(cam.centre)
-    e1 = np.cross(axis, [0.0, 0.0, 1.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(axis, e1)
-    rim = 10.0 * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
-    uv, _ = cam.project(rim)
-    uv += np.random.default_rng(7).normal(scale=0.4, size=uv.shape)
-    origin, dirs = cam.rays(uv)
+    origin, dirs = _rim_rays(views[2].camera, 400, noise=0.4, seed=7)
     bounds = np.array([[-12.0] * 3, [12.0] * 3])
     kw = dict(step_mm=0.25, refine_levels=3, stack=stack_views(views), mesh=md, pose=pose, tolerance_px=0.05)
     full = bk.select_on_rays(origin, dirs, views, 2, sd, bounds, **kw)
