@@ -9,6 +9,7 @@ Two ways to get the candidates:
 * :func:`select_on_rays` (``ray``): the exact ray through the *sub-pixel* contour point,
   sampled where it lies inside the silhouettes of all the other cameras (the image-based
   visual hull of that ray); the minimum is refined to well below a pixel.
+  :func:`select_on_camera_rays` does it for every camera's rays at once.
 * :func:`select_on_surface` (``surface``, the paper's way): the reconstruction's surface
   points whose projection falls on a contour pixel.
 """
