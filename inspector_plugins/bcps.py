@@ -22,12 +22,11 @@ from inspector.errors import StageError
 from inspector.kernels import bcps as bk
 from inspector.kernels.pose import search_pose
 from inspector.kernels.prior import SizePrior
-from inspector.kernels.silhouette import inside_map, inside_region
-from inspector.kernels.threads import map_threads
 from inspector.model import BcpsPoints
 from inspector.params import param
 from inspector.pipeline import InspectionContext
 from inspector.registry import StageRegistry, StageSpec
+from inspector_plugins.bcps_rays import ContourRays
 
 
 @dataclass(frozen=True)
@@ -71,53 +70,6 @@ class SurfaceParams:
     compiled: ClassVar[bool] = False
 
 
-class ContourRays:
-    """Every camera's rays through its sub-pixel contour points, and the silhouettes' inside
-    maps the ray method needs: built on first use, kept for one inspection."""
-
-    def __init__(self, ctx: InspectionContext, compiled: bool) -> None:
-        self.ctx, self.compiled = ctx, compiled
-        self._views: tuple[list[bk.View], object | None] | None = None
-        self._rays: dict[int, bk.Rays] = {}
-
-    def views(self) -> tuple[list[bk.View], object | None]:
-        """The silhouettes as :class:`~inspector.kernels.bcps.View` and, compiled, their stack."""
-        if self._views is None:
-            sils = self.ctx.need("silhouettes", "bcps")
-            # OpenCV and numpy release the GIL: cameras in parallel. The compiled kernels pack each
-            # map's region around the silhouette (16 x 5 MP: 320 MB of float32 never written).
-            maps = map_threads(lambda s: inside_region(s.soft, support=s.support) if self.compiled else inside_map(s.soft), sils)
-            views = [bk.View(cam, m, s.touches_border) for cam, m, s in zip(self.ctx.capture.rig.cameras, maps, sils)]
-            stack = None
-            if self.compiled:
-                from inspector.kernels.hull_jit import stack_views
-
-                stack = stack_views(views)
-            self._views = (views, stack)
-        return self._views
-
-    def camera(self, i: int) -> bk.Rays:
-        """Camera ``i``'s rays (:class:`~inspector.kernels.bcps.Rays`) and the depth range
-        each can meet the reconstruction in."""
-        if not self._rays:  # all cameras on the first ask, in parallel (the work releases the GIL)
-            self._rays = dict(enumerate(map_threads(self._build, range(len(self.ctx.capture.rig.cameras)))))
-        return self._rays[i]
-
-    def _build(self, i: int) -> bk.Rays:
-        cam, contour = self.ctx.capture.rig.cameras[i], self.ctx.need("silhouettes", "bcps")[i].contour
-        recon = self.ctx.need("reconstruction", "bcps")
-        origin, dirs = cam.rays(contour)
-        # Only where the ray passes near the reconstruction (the hull is conservative). A pose
-        # update can move a grazing ray's optimum far along it: every pass searches it all.
-        t0, t1 = bk.ray_ranges(cam, contour, origin, dirs, recon.points, max(1.0, 2.0 * recon.voxel_mm),
-                               compiled=self.compiled)
-        return bk.Rays(origin, dirs, t0, t1)
-
-    def all(self) -> list[bk.Rays]:
-        """The rays of every camera with a contour, in camera order."""
-        return [self.camera(i) for i, s in enumerate(self.ctx.need("silhouettes", "bcps")) if len(s.contour)]
-
-
 def _bounds(ctx: InspectionContext, margin: float) -> np.ndarray:
     pts = ctx.need("reconstruction", "bcps").points
     if len(pts) == 0:
@@ -156,10 +108,12 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
     sub = slice(None, None, bk.sparse_stride([len(s.contour) for s in sils], p.refine_stride, p.refine_rays) if sparse else 1)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("points", "deviation", "camera", "pixel", "segment")}
     cams = [i for i, sil in enumerate(sils) if len(sil.contour)]
+    tables = rays.coarse(cams, bounds, p.step_mm, accept)  # the hull's part of every selection, once
     picked = bk.select_on_camera_rays(  # every camera's rays in one call
         [(i, rays.camera(i).take(sub)) for i in cams], views, sd_fn, bounds, stack=stack, step_mm=p.step_mm,
         refine_levels=levels, tolerance_px=p.tolerance_px, accept_px=accept, violation_weight=p.violation_weight,
         mesh=ref.distance if stack is not None else None, pose=place, sd_scale=prior.scale, segments=not sparse,
+        coarse=None if tables is None else [t.take(sub) for t in tables],
     )
     for i, (pts, dev, seg, ok) in zip(cams, picked):
         out["points"].append(pts[ok])

@@ -26,7 +26,7 @@ from inspector.kernels.ray_search import ray_min_search
 from inspector.kernels.silhouette import InsideRegion, sample_bilinear
 from inspector.model import Camera
 
-__all__ = ["confidence", "ray_min_distance", "ray_ranges", "Rays", "View", "hull_violation", "hull_membership", "select_on_rays",
+__all__ = ["confidence", "coarse_hull", "CoarseHull", "ray_min_distance", "ray_ranges", "Rays", "View", "hull_violation", "hull_membership", "select_on_rays",
            "select_on_camera_rays", "select_on_surface", "ray_box", "sparse_stride"]
 
 SignedDistance = Callable[[np.ndarray], np.ndarray]
@@ -132,6 +132,30 @@ class Rays(NamedTuple):
     def take(self, rows: slice | np.ndarray) -> Rays:
         """The rays ``rows`` (a slice, indices or a mask)."""
         return Rays(self.origin, self.dirs[rows], self.t0[rows], self.t1[rows])
+
+
+class CoarseHull(NamedTuple):
+    """One camera's rays' coarse samples, hull-tested once an inspection (:func:`coarse_hull`).
+
+    Attributes
+    ----------
+    start, samples : (M,) int
+        Where each ray's samples begin in ``values`` (-1: none), and how many.
+    values : (S,) float
+        Hull violations, px (inf: rejected); shared by the cameras tested together.
+    key : tuple
+        What the table was made for (step, acceptance, bounds): a selection with other
+        parameters refuses it.
+    """
+
+    start: np.ndarray
+    samples: np.ndarray
+    values: np.ndarray
+    key: tuple[float, float, bytes]
+
+    def take(self, rows: slice | np.ndarray) -> CoarseHull:
+        """The rays ``rows``, as :meth:`Rays.take`."""
+        return CoarseHull(self.start[rows], self.samples[rows], self.values, self.key)
 
 
 def ray_box(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -453,6 +477,7 @@ class _Camera(NamedTuple):
     lip: float  # bound of the hull violation's rate along a ray, px / mm
     weight: float  # cost of one pixel of hull violation, mm
     out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+    coarse: CoarseHull | None = None  # the rays hit's table of coarse violations
 
 
 def select_on_camera_rays(
@@ -460,6 +485,7 @@ def select_on_camera_rays(
     step_mm: float = 0.25, refine_levels: int = 2, refine_samples: int = 11, tolerance_px: float = 0.05,
     accept_px: float = 1.0, violation_weight: float = 3.0, max_points: int = 1_000_000, stack: object | None = None,
     mesh: object | None = None, pose: np.ndarray | None = None, sd_scale: float = 1.0, segments: bool = True,
+    coarse: Sequence[CoarseHull] | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
     """:func:`select_on_rays` for the rays of several cameras at once.
 
@@ -473,6 +499,11 @@ def select_on_camera_rays(
         As :func:`select_on_rays`. The compiled search (``stack``, ``mesh`` and ``pose``)
         answers every camera's rays in one call: the same points as one call per camera,
         without a parallel region's start and end per camera.
+    coarse : sequence of CoarseHull, optional
+        For the compiled search: each entry of ``rays``' table from :func:`coarse_hull`
+        (the same rays, or the same ``take``), read instead of testing the coarse samples
+        against the hull again (the same results). ValueError when a table was made for
+        another step, acceptance or ``bounds``.
 
     Returns
     -------
@@ -480,19 +511,10 @@ def select_on_camera_rays(
         :func:`select_on_rays`'s results for each entry of ``rays``, in order.
     """
     s = _RaySearch(step_mm, refine_levels, refine_samples, tolerance_px, accept_px, violation_weight, max_points)
-    speeds = _view_speeds(views, bounds)
-    outs, todo = [], []
-    for skip, r in rays:
-        M = len(r.dirs)
-        out = (np.full((M, 3), np.nan), np.full(M, np.nan), np.zeros(M), np.zeros(M, bool))
-        outs.append(out)
-        t0, t1 = ray_box(r.origin, r.dirs, bounds)
-        t0, t1 = np.maximum(t0, r.t0), np.minimum(t1, r.t1)
-        hit = np.flatnonzero(t1 > t0)
-        others = [v for i, v in enumerate(speeds) if i != skip]
-        if hit.size and others:
-            lip = max(0.0, *others)
-            todo.append(_Camera(skip, r.origin, r.dirs, hit, t0, t1, lip, violation_weight / lip, out))
+    outs, todo = _cameras(rays, views, bounds, violation_weight, coarse)
+    for c in todo:
+        if c.coarse is not None and c.coarse.key != _coarse_key(s, c.lip, bounds):
+            raise ValueError(f"camera {c.skip}: its coarse hull table was made for another step, acceptance or bounds")
     if todo and stack is not None and mesh is not None and pose is not None:
         _select_compiled(todo, views, sd_fn, bounds, s, stack, mesh, pose, sd_scale, segments)
     else:
@@ -503,6 +525,82 @@ def select_on_camera_rays(
         for c in todo:
             c.out[2][:] = np.nan
     return outs
+
+
+def _cameras(rays: Sequence[tuple[int, Rays]], views: Sequence[View], bounds: np.ndarray, violation_weight: float,
+             coarse: Sequence[CoarseHull] | None = None,
+             ) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], list[_Camera]]:
+    """Each entry of ``rays``' results (to fill) and, for those with rays to search (a range
+    inside ``bounds``, and another camera to test them against), its :class:`_Camera`."""
+    speeds = _view_speeds(views, bounds)
+    outs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = []
+    todo: list[_Camera] = []
+    for e, (skip, r) in enumerate(rays):
+        M = len(r.dirs)
+        out = (np.full((M, 3), np.nan), np.full(M, np.nan), np.zeros(M), np.zeros(M, bool))
+        outs.append(out)
+        t0, t1 = ray_box(r.origin, r.dirs, bounds)
+        t0, t1 = np.maximum(t0, r.t0), np.minimum(t1, r.t1)
+        hit = np.flatnonzero(t1 > t0)
+        others = [v for i, v in enumerate(speeds) if i != skip]
+        if hit.size and others:
+            lip = max(0.0, *others)
+            table = coarse[e].take(hit) if coarse is not None else None
+            todo.append(_Camera(skip, r.origin, r.dirs, hit, t0, t1, lip, violation_weight / lip, out, table))
+    return outs, todo
+
+
+def _coarse_key(s: _RaySearch, lip: float, bounds: np.ndarray) -> tuple[float, float, bytes]:
+    """What a camera's coarse samples' hull test depends on: the step, the acceptance
+    ``max(0.5 * lip * step, accept)`` (the compiled search's, to the bit) and the bounds."""
+    return float(s.step_mm), max(0.5 * lip * s.step_mm, s.accept_px), np.asarray(bounds, np.float64).tobytes()
+
+
+def coarse_hull(rays: Sequence[tuple[int, Rays]], views: Sequence[View], bounds: np.ndarray, stack: object, *,
+                step_mm: float = 0.25, accept_px: float = 1.0) -> list[CoarseHull]:
+    """Hull-test the coarse samples of every camera's rays once, for
+    :func:`select_on_camera_rays` (``coarse``) with the same ``bounds``, ``step_mm`` and
+    ``accept_px``: the hull does not move with the reference's pose, so an inspection's
+    selections then compute only the admitted samples' signed distances.
+
+    Parameters
+    ----------
+    rays : sequence of (int, Rays)
+        As :func:`select_on_camera_rays`: the rays the selections take (or ``take`` from).
+    views, bounds, step_mm, accept_px
+        As :func:`select_on_rays`; ``stack`` is ``views`` packed for the compiled kernels.
+
+    Returns
+    -------
+    list of CoarseHull
+        One per entry of ``rays``, sharing one array of violations.
+    """
+    from inspector.kernels import bcps_jit
+
+    s = _RaySearch(step_mm, 0, 3, 0.0, accept_px, 1.0, 1)
+    outs, todo = _cameras(rays, views, bounds, 1.0)
+    keys = [_coarse_key(s, c.lip, bounds) for c in todo]
+    start, count, values = bcps_jit.coarse_violations(*_packed(todo), stack, [c.skip for c in todo],
+                                                      [k[1] for k in keys], step_mm=step_mm, bounds=bounds)
+    tables = [CoarseHull(np.full(len(r.dirs), -1, np.int64), np.zeros(len(r.dirs), np.int64), values,
+                         (float(step_mm), float("nan"), b"")) for _, r in rays]  # (no ray to search)
+    end = 0
+    for c, key in zip(todo, keys):
+        e = next(e for e, out in enumerate(outs) if out is c.out)
+        rows = slice(end, end + len(c.hit))
+        tables[e].start[c.hit], tables[e].samples[c.hit], end = start[rows], count[rows], rows.stop
+        tables[e] = tables[e]._replace(key=key)
+    return tables
+
+
+def _packed(todo: Sequence[_Camera]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cameras' rays ``hit`` one after the other, as the compiled kernels take them:
+    ``origins`` (E, 3), ``entry`` (M,) (each ray's camera in ``todo``), ``dirs``, ``t0``, ``t1``."""
+    return (np.array([c.origin for c in todo], dtype=np.float64).reshape(-1, 3),
+            np.concatenate([np.full(len(c.hit), e, np.int64) for e, c in enumerate(todo)] + [np.zeros(0, np.int64)]),
+            np.concatenate([c.dirs[c.hit] for c in todo] + [np.zeros((0, 3))]),
+            np.concatenate([c.t0[c.hit] for c in todo] + [np.zeros(0)]),
+            np.concatenate([c.t1[c.hit] for c in todo] + [np.zeros(0)]))
 
 
 def _hull_of(views: Sequence[View], skip: int, stack: object | None) -> Callable[[np.ndarray, float], np.ndarray]:
@@ -533,13 +631,10 @@ def _select_compiled(
     from inspector.kernels import bcps_jit
 
     tb, vb, sb, seg, oob = bcps_jit.select_rays(
-        np.array([c.origin for c in todo], dtype=np.float64),
-        np.concatenate([np.full(len(c.hit), e, np.int64) for e, c in enumerate(todo)]),
-        np.concatenate([c.dirs[c.hit] for c in todo]), np.concatenate([c.t0[c.hit] for c in todo]),
-        np.concatenate([c.t1[c.hit] for c in todo]), stack, [c.skip for c in todo], mesh, pose, step_mm=s.step_mm,
+        *_packed(todo), stack, [c.skip for c in todo], mesh, pose, step_mm=s.step_mm,
         refine_levels=s.refine_levels, refine_samples=s.refine_samples, tolerance_px=s.tolerance_px,
         accept_px=s.accept_px, weights=[c.weight for c in todo], lips=[c.lip for c in todo], bounds=bounds,
-        sd_scale=sd_scale, segments=segments,
+        sd_scale=sd_scale, segments=segments, coarse=_tables(todo),
     )
     end = 0
     for c in todo:
@@ -556,6 +651,16 @@ def _select_compiled(
         if o.any():
             _select_sampled(c.origin, c.dirs, c.hit[o], c.t0, c.t1, _hull_of(views, c.skip, stack), sd_fn, c.lip,
                             c.weight, s, c.out)
+
+
+def _tables(todo: Sequence[_Camera]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The cameras' coarse tables as the compiled search reads them, ``(start, samples,
+    values)`` over their rays ``hit`` in order; None unless every camera has one, all from
+    one :func:`coarse_hull` (tables made apart: the samples are tested again)."""
+    tabs = [c.coarse for c in todo if c.coarse is not None]
+    if not tabs or len(tabs) < len(todo) or any(t.values is not tabs[0].values for t in tabs):
+        return None
+    return np.concatenate([t.start for t in tabs]), np.concatenate([t.samples for t in tabs]), tabs[0].values
 
 
 def _select_sampled(

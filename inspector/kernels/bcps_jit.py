@@ -34,7 +34,7 @@ numba.config.THREADING_LAYER = "omp"  # type: ignore[attr-defined]  # set at run
 # of 7 columns) must come with a change to this file, or a stale cache would inline the old one.
 MAP_LAYOUT = 2  # CameraStack.sizes layout this module was compiled against
 
-__all__ = ["select_rays", "MAP_LIPSCHITZ"]
+__all__ = ["select_rays", "coarse_violations", "MAP_LIPSCHITZ"]
 
 #: Bound of the inside-maps' rate of change, px per px of image motion (bilinear
 #: interpolation of distance transforms and of the coverage ramp: sqrt(2) to about 2.7
@@ -42,6 +42,9 @@ __all__ = ["select_rays", "MAP_LIPSCHITZ"]
 MAP_LIPSCHITZ = 3.0
 #: Extra margin of the skip tests, px.
 _MARGIN = 1.0
+#: No table of coarse violations (:func:`coarse_violations`).
+_NONE_I = np.zeros(0, np.int64)
+_NONE_F = np.zeros(0)
 
 
 @numba.njit(cache=True, inline="always")
@@ -150,13 +153,14 @@ def _distances_along(origin, d0, d1, d2, a0, step, Ai, sc, tri, pn, lo, h, dims,
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _select_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border, skips, lc,
                    tri, pn, lo, h, dims, start, items, dc, Ai, sc,
-                   step, levels, offsets, tol, accept, weights, lips, segments,
+                   step, levels, offsets, tol, accept, weights, lips, segments, cstart, ccount, cvals,
                    t_out, v_out, s_out, seg_out, oob_out):
     # One call for the rays of every camera of a pass (issue 26: sixteen calls, one per
     # camera, each a parallel region of a few milliseconds, lost a seventh of two threads'
     # time to the regions' start and end, and the Python between them). Ray r goes through
     # the contour of camera skips[entry[r]], from origins[entry[r]]; lips and weights are
-    # that camera's.
+    # that camera's. With a table of the coarse samples' violations (cstart[r] >= 0, from
+    # _coarse_kernel: they do not depend on the pose) only its admitted samples are placed.
     M = dirs.shape[0]
     C = K.shape[0]
     nref = offsets.shape[0]
@@ -205,14 +209,19 @@ def _select_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, ope
         # the nearest, until no untested sample can cost less than the best (a cost is its
         # distance plus a penalty): the same best and deepest samples as the scan in index
         # order, whose hull tests are mostly of samples that cannot win. A ray with a
-        # distance outside the index's band is scanned, which flags it where it must.
-        ordered = not segments
+        # distance outside the index's band is scanned, which flags it where it must. With
+        # the table, the samples it admits are scanned in index order: only their distances.
+        tab = cstart.shape[0] > 0 and cstart[r] >= 0 and ccount[r] == n
+        ordered = not segments and not tab
         sv = np.empty(n if ordered else 0)
         if ordered:
             ordered = _distances_along(origin, d0, d1, d2, a0, step, Ai, sc, tri, pn, lo, h, dims, start, items, dc, sv)
         bk = n
         qk = n
+        base = cstart[r] if tab else 0
         for i in range(n):
+            if tab and not cvals[base + i] <= eps:
+                continue  # the table's hull test rejected it (the same test, once an inspection)
             if ordered:
                 # the nearest untested sample, the first in index among equals (few are
                 # tested: picking each in turn is cheaper than a sort)
@@ -231,7 +240,11 @@ def _select_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, ope
             x0 = origin[0] + tk * d0
             x1 = origin[1] + tk * d1
             x2 = origin[2] + tk * d2
-            v, first = _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lcr, grec, trec)
+            if tab:
+                v = cvals[base + k]
+            else:
+                v, first = _violation(x0, x1, x2, tk, K, R, t, dist, maps, sizes, open_border, eps, skip, first, lcr,
+                                      grec, trec)
             if v > eps:
                 continue
             if not ordered:
@@ -252,7 +265,7 @@ def _select_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, ope
                 qv = v
                 qs = s
                 qk = k
-        if ordered:
+        if not segments:  # (a table or the distance order: not every sample was counted)
             nfeas = -1
         # (the coarse and refinement loops repeat "sample -> hull -> distance" on purpose:
         # a shared helper is not inlinable by Numba with this many arguments, and an
@@ -364,6 +377,76 @@ def _select_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, ope
         s_out[r] = bs
 
 
+@numba.njit(parallel=True, cache=True, nogil=True)
+def _coarse_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, open_border, skips, lc, step, eps_e,
+                   cstart, ccount, cvals):
+    # The hull violation of each ray's coarse samples, in index order as the scan of
+    # _select_kernel (the same function of the same point and limit); inf where rejected.
+    M = dirs.shape[0]
+    C = K.shape[0]
+    for r in numba.prange(M):
+        ccount[r] = 0
+        a0 = t0[r]
+        a1 = t1[r]
+        if not (a1 > a0):
+            continue
+        e = entry[r]
+        origin = origins[e]
+        eps = eps_e[e]
+        d0 = dirs[r, 0]
+        d1 = dirs[r, 1]
+        d2 = dirs[r, 2]
+        n = int(math.ceil((a1 - a0) / step)) + 1
+        while n > 0 and a0 + step * (n - 1) > a1 + 1e-9:
+            n -= 1
+        first = 0
+        grec = np.empty(C)
+        trec = np.full(C, np.nan)
+        lcr = _ray_speeds(origin, d0, d1, d2, a0, a1, K, R, t, lc)
+        base = cstart[r]
+        for k in range(n):
+            tk = a0 + step * k
+            v, first = _violation(origin[0] + tk * d0, origin[1] + tk * d1, origin[2] + tk * d2, tk, K, R, t, dist,
+                                  maps, sizes, open_border, eps, skips[e], first, lcr, grec, trec)
+            cvals[base + k] = v if v <= eps else np.inf
+        ccount[r] = n
+
+
+def coarse_violations(origins, entry, dirs, t0, t1, stack, skips, eps, *, step_mm, bounds):
+    """The hull violation, px, of every coarse sample ``t0 + k * step_mm`` (``k = 0 .. n - 1``,
+    up to ``t1``) of rays ``origins[entry] + t * dirs`` (M, 3): a table that
+    :func:`select_rays` reads instead of testing them (they do not depend on the pose).
+
+    ``eps`` (E,) is each camera's coarse acceptance, px (a violation above it is stored as
+    inf); the other parameters are :func:`select_rays`'.
+
+    Returns
+    -------
+    start, count : (M,) int
+        Where each ray's samples begin in ``values``, and how many (0: an empty range).
+    values : (S,) float
+        The violations, px, ray after ray.
+    """
+    t0 = np.ascontiguousarray(t0, dtype=np.float64)
+    t1 = np.ascontiguousarray(t1, dtype=np.float64)
+    M = len(t0)
+    with np.errstate(invalid="ignore"):
+        room = np.where(t1 > t0, np.ceil((t1 - t0) / step_mm) + 1, 0).astype(np.int64)  # the kernel's n or more
+    start = np.zeros(M, np.int64)
+    np.cumsum(room[:-1], out=start[1:])
+    count = np.zeros(M, np.int64)
+    values = np.empty(int(room.sum()))
+    if M:
+        _coarse_kernel(
+            np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3), np.ascontiguousarray(entry, dtype=np.int64),
+            np.ascontiguousarray(dirs, dtype=np.float64), t0, t1, stack.K, stack.R, stack.t, stack.dist, stack.maps,
+            stack.sizes, stack.open_border, np.ascontiguousarray(skips, dtype=np.int64),
+            MAP_LIPSCHITZ * camera_speed(stack, np.asarray(bounds, float)), float(step_mm),
+            np.ascontiguousarray(eps, dtype=np.float64), start, count, values,
+        )
+    return start, count, values
+
+
 def camera_speed(stack: CameraStack, bounds: np.ndarray) -> np.ndarray:
     """Per camera, a bound of how fast a point's projection moves, px per mm, for points
     in the sphere around ``bounds`` (2, 3) mm; inf for cameras with lens distortion
@@ -394,7 +477,7 @@ def camera_speed(stack: CameraStack, bounds: np.ndarray) -> np.ndarray:
 
 
 def select_rays(origins, entry, dirs, t0, t1, stack, skips, mesh, pose, *, step_mm, refine_levels, refine_samples,
-                tolerance_px, accept_px, weights, lips, bounds, sd_scale=1.0, segments=True):
+                tolerance_px, accept_px, weights, lips, bounds, sd_scale=1.0, segments=True, coarse=None):
     """Run the fused search on rays ``origins[entry] + t * dirs`` (M, 3) over ``[t0, t1]`` (M,),
     the rays of several cameras at once.
 
@@ -409,7 +492,10 @@ def select_rays(origins, entry, dirs, t0, t1, stack, skips, mesh, pose, *, step_
     point ``x`` is then ``sd_scale * mesh(pose^-1 x)`` (a scaled reference,
     :class:`~inspector.kernels.prior.SizePrior`; still 1-Lipschitz). ``segments=False``:
     the segments' lengths are not measured (NaN), which lets the coarse search test only
-    the samples that can win (the same selected points).
+    the samples that can win (the same selected points). ``coarse``: the rays' table of
+    :func:`coarse_violations` ``(start, count, values)``, made with the same step, ranges
+    and each camera's ``max(0.5 * lip * step_mm, accept_px)``; its violations are read
+    instead of tested (the same results; a ray whose count differs is tested).
 
     Returns
     -------
@@ -434,7 +520,7 @@ def select_rays(origins, entry, dirs, t0, t1, stack, skips, mesh, pose, *, step_
             *mesh.args(), Ai, float(sd_scale),
             float(step_mm), int(refine_levels), np.linspace(-1.0, 1.0, int(refine_samples)), float(tolerance_px),
             float(accept_px), np.ascontiguousarray(weights, dtype=np.float64), np.ascontiguousarray(lips, dtype=np.float64),
-            bool(segments), *out, oob,
+            bool(segments), *(coarse if coarse is not None else (_NONE_I, _NONE_I, _NONE_F)), *out, oob,
         )
     return out[0], out[1], out[2], out[3], oob
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import pytest
 
@@ -199,12 +201,20 @@ def test_compiled_search_equals_numpy_search(views, band_mm, segments):
         assert sum(calls) > 0  # some rays left the band and took the numpy path
 
 
-@pytest.mark.parametrize("segments", [True, False])
-def test_all_cameras_in_one_call_select_what_each_camera_alone_selects(views, segments):
-    """One compiled call for several cameras' rays (each skipping its own silhouette, with its
-    own bound and weight) gives each camera exactly what a call for that camera alone gives;
-    rays that leave the distance index's band take the numpy path, camera by camera; a
-    camera without rays and rays with an empty range give no point."""
+class _FourCameras(NamedTuple):
+    md: object  # MeshDistance of the box, 0.6 mm band
+    views: list
+    stack: object
+    bounds: np.ndarray
+    rays: list  # (camera, Rays)
+    calls: list  # sizes of the exact fallback's calls
+
+
+def _four_cameras(views):
+    """Rim rays of cameras 4 (nearer than the others: its bound of the projection's rate,
+    and with it its tolerance and violation weight, differ from theirs), 0, 2 and 5 (every
+    7th range empty) and of camera 1 (none), around a box whose distance index's narrow
+    band some of them leave (the exact fallback counts its calls)."""
     import trimesh
 
     from inspector.kernels.hull_jit import stack_views
@@ -212,27 +222,15 @@ def test_all_cameras_in_one_call_select_what_each_camera_alone_selects(views, se
 
     ref = trimesh.creation.box(extents=(19.0, 20.5, 19.5))
     md = MeshDistance(ref.vertices, ref.faces, band_mm=0.6)
-    pose = np.eye(4)
-    pose[:3, 3] = [0.1, -0.05, 0.0]
-
-    def sd(X):
-        return md(X - pose[:3, 3])
-
-    # camera 4 nearer than the others: its bound of the projection's rate, and with it its
-    # tolerance and violation weight, differ from theirs
     views = [*views[:4], *sphere_views(dist=300.0, only=4), *views[5:]]
-    stack = stack_views(views)
-    bounds = np.array([[-12.0] * 3, [12.0] * 3])
-    cams = [4, 0, 2, 5]
     rays = []
-    for k, i in enumerate(cams):
+    for k, i in enumerate([4, 0, 2, 5]):
         origin, dirs = _rim_rays(views[i].camera, 150 + 40 * k, noise=0.3, seed=k)
         near = np.linalg.norm(origin)
         t0, t1 = np.full(len(dirs), near - 20.0), np.full(len(dirs), near + 20.0)
         t1[::7] = t0[::7] - 1.0  # an empty range
         rays.append((i, bk.Rays(origin, dirs, t0, t1)))
     rays.append((1, bk.Rays(views[1].camera.centre, np.zeros((0, 3)), np.zeros(0), np.zeros(0))))
-    kw = dict(step_mm=0.25, refine_levels=3, stack=stack, mesh=md, pose=pose, segments=segments)
     calls = []
 
     def box_distance(X):  # exact, beyond the band
@@ -241,16 +239,65 @@ def test_all_cameras_in_one_call_select_what_each_camera_alone_selects(views, se
         return np.linalg.norm(np.maximum(q, 0.0), axis=1) + np.minimum(q.max(axis=1), 0.0)
 
     md.fallback = box_distance
-    together = bk.select_on_camera_rays(rays, views, sd, bounds, **kw)
-    assert sum(calls) > 0  # some rays left the band
-    assert len(together) == len(rays)
-    for (i, r), got in zip(rays, together):
-        alone = bk.select_on_rays(r.origin, r.dirs, views, i, sd, bounds, t_range=(r.t0, r.t1), **kw)
+    return _FourCameras(md, views, stack_views(views), np.array([[-12.0] * 3, [12.0] * 3]), rays, calls)
+
+
+def _placed(md, shift):
+    """The pose (4, 4) of the reference moved by ``shift`` mm, and its signed distance."""
+    pose = np.eye(4)
+    pose[:3, 3] = shift
+    return pose, lambda X: md(X - pose[:3, 3])
+
+
+@pytest.mark.parametrize("segments", [True, False])
+def test_all_cameras_in_one_call_select_what_each_camera_alone_selects(views, segments):
+    """One compiled call for several cameras' rays (each skipping its own silhouette, with its
+    own bound and weight) gives each camera exactly what a call for that camera alone gives;
+    rays that leave the distance index's band take the numpy path, camera by camera; a
+    camera without rays and rays with an empty range give no point."""
+    s = _four_cameras(views)
+    pose, sd = _placed(s.md, [0.1, -0.05, 0.0])
+    kw = dict(step_mm=0.25, refine_levels=3, stack=s.stack, mesh=s.md, pose=pose, segments=segments)
+    together = bk.select_on_camera_rays(s.rays, s.views, sd, s.bounds, **kw)
+    assert sum(s.calls) > 0  # some rays left the band
+    assert len(together) == len(s.rays)
+    for (i, r), got in zip(s.rays, together):
+        alone = bk.select_on_rays(r.origin, r.dirs, s.views, i, sd, s.bounds, t_range=(r.t0, r.t1), **kw)
         for a, b in zip(alone, got):
             np.testing.assert_array_equal(b, a)
         if len(r.dirs):
             assert got[3].mean() > 0.5 and not got[3][::7].any()
     assert len(together[-1][0]) == 0
+
+
+@pytest.mark.parametrize("segments", [True, False])
+def test_coarse_samples_hull_tested_once_select_what_testing_them_selects(views, segments):
+    """The coarse samples hull-tested once (:func:`coarse_hull`) and read by selections at
+    two poses, on all the rays and on a sparse take of them, give exactly what testing them
+    gives (rays leaving the band still take the numpy path). The table is read: emptied, no
+    ray has a point. One made for another step is refused."""
+    s = _four_cameras(views)
+    tables = bk.coarse_hull(s.rays, s.views, s.bounds, s.stack, step_mm=0.25, accept_px=0.2)  # the stage's
+    assert np.isfinite(tables[0].values).any() and not np.isfinite(tables[0].values).all()
+    for shift in ([0.1, -0.05, 0.0], [-0.4, 0.3, 0.2]):
+        pose, sd = _placed(s.md, shift)
+        kw = dict(step_mm=0.25, refine_levels=3, accept_px=0.2, stack=s.stack, mesh=s.md, pose=pose, segments=segments)
+        for rows in (slice(None), slice(1, None, 3)):
+            rays = [(i, r.take(rows)) for i, r in s.rays]
+            tested = bk.select_on_camera_rays(rays, s.views, sd, s.bounds, **kw)
+            del s.calls[:]
+            read = bk.select_on_camera_rays(rays, s.views, sd, s.bounds, coarse=[t.take(rows) for t in tables], **kw)
+            assert sum(s.calls) > 0
+            for a, b in zip(tested, read):
+                for x, y in zip(a, b):
+                    np.testing.assert_array_equal(y, x)
+            assert sum(int(r[3].sum()) for r in read) > 100
+    rejected = np.full_like(tables[0].values, np.inf)
+    empty = [t._replace(values=rejected) for t in tables]
+    got = bk.select_on_camera_rays(s.rays, s.views, sd, s.bounds, coarse=empty, **kw)
+    assert not any(r[3].any() for r in got)
+    with pytest.raises(ValueError, match="camera 4: its coarse hull table was made for another step"):
+        bk.select_on_camera_rays(s.rays, s.views, sd, s.bounds, coarse=tables, **{**kw, "step_mm": 0.3})
 
 
 def test_search_by_distance_selects_what_the_scan_selects(views):
