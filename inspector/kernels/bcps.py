@@ -464,10 +464,11 @@ def select_on_rays(
 
 
 class _Camera(NamedTuple):
-    """One camera's share of :func:`select_on_camera_rays`: its rays with a non-empty range
-    ``hit`` (indices into ``dirs``), their ranges ``t0, t1`` (M,) and its results ``out``,
-    filled in place."""
+    """One camera's share of :func:`select_on_camera_rays` (``entry``: its place in ``rays``):
+    its rays with a non-empty range ``hit`` (indices into ``dirs``), their ranges ``t0, t1``
+    (M,) and its results ``out``, filled in place."""
 
+    entry: int
     skip: int
     origin: np.ndarray
     dirs: np.ndarray
@@ -546,7 +547,7 @@ def _cameras(rays: Sequence[tuple[int, Rays]], views: Sequence[View], bounds: np
         if hit.size and others:
             lip = max(0.0, *others)
             table = coarse[e].take(hit) if coarse is not None else None
-            todo.append(_Camera(skip, r.origin, r.dirs, hit, t0, t1, lip, violation_weight / lip, out, table))
+            todo.append(_Camera(e, skip, r.origin, r.dirs, hit, t0, t1, lip, violation_weight / lip, out, table))
     return outs, todo
 
 
@@ -578,7 +579,7 @@ def coarse_hull(rays: Sequence[tuple[int, Rays]], views: Sequence[View], bounds:
     from inspector.kernels import bcps_jit
 
     s = _RaySearch(step_mm, 0, 3, 0.0, accept_px, 1.0, 1)
-    outs, todo = _cameras(rays, views, bounds, 1.0)
+    _, todo = _cameras(rays, views, bounds, 1.0)
     keys = [_coarse_key(s, c.lip, bounds) for c in todo]
     start, count, values = bcps_jit.coarse_violations(*_packed(todo), stack, [c.skip for c in todo],
                                                       [k[1] for k in keys], step_mm=step_mm, bounds=bounds)
@@ -586,10 +587,9 @@ def coarse_hull(rays: Sequence[tuple[int, Rays]], views: Sequence[View], bounds:
                          (float(step_mm), float("nan"), b"")) for _, r in rays]  # (no ray to search)
     end = 0
     for c, key in zip(todo, keys):
-        e = next(e for e, out in enumerate(outs) if out is c.out)
         rows = slice(end, end + len(c.hit))
-        tables[e].start[c.hit], tables[e].samples[c.hit], end = start[rows], count[rows], rows.stop
-        tables[e] = tables[e]._replace(key=key)
+        tables[c.entry].start[c.hit], tables[c.entry].samples[c.hit], end = start[rows], count[rows], rows.stop
+        tables[c.entry] = tables[c.entry]._replace(key=key)
     return tables
 
 
