@@ -97,3 +97,35 @@ def test_near_is_the_exact_distance_within_the_band_and_nan_beyond():
     np.testing.assert_allclose(d[:2], [0.5, -0.8], atol=1e-12)
     assert np.isnan(d[2]) and np.isnan(d[3])  # beyond the band, with or without a fallback
     assert md(P)[2] == -7.0
+
+
+@pytest.mark.parametrize("with_fallback", [False, True])
+def test_residuals_in_one_pass_are_closest_and_numpy_bit_for_bit(with_fallback):
+    """The fits' question in one compiled pass: in a frame offset by ``centre``, each point's
+    closest point, its triangle's normal and its distance, to the bit what :meth:`closest`
+    and numpy after it give; beyond the band the fallback answers (NaN without one)."""
+    from inspector.kernels.rigid import RefMesh
+
+    mesh = load_reference("builtin:bracket", recentre=False)
+    mesh.apply_translation([3.3, -7.1, 11.7])  # a real offset between the two frames
+    V, F = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    md = MeshDistance(V, F, band_mm=1.0)
+    ref = RefMesh(V, F, index=md)
+    assert np.abs(ref.centre).max() > 1.0
+    P = _near_surface(mesh, 3000, 1.5, seed=7) - ref.centre  # some beyond the 1 mm band
+    if with_fallback:
+        md.fallback_closest = lambda X: ref.index.__class__(V, F, band_mm=40.0).closest(X)
+    c, n, r = md.residuals(P, ref.centre, ref.face_normals)
+    q, tid = md.closest(P + ref.centre)
+    want_c = q - ref.centre
+    d = P - want_c
+    miss = tid < 0
+    assert 0.05 < np.mean(np.isnan(want_c[:, 0])) < 0.5 if not with_fallback else not miss.any()
+    np.testing.assert_array_equal(c, want_c)
+    np.testing.assert_array_equal(n, ref.face_normals[tid])
+    np.testing.assert_array_equal(r, np.sqrt(np.sum(d * d, axis=1)))
+    K = P[:2400].reshape(2, 1200, 3)  # as the Gauss-Newton step asks: (K, N, 3)
+    got = ref.residuals(K)
+    assert [a.shape for a in got] == [(2, 1200, 3), (2, 1200, 3), (2, 1200)]
+    for a, b in zip(got, (c[:2400].reshape(2, 1200, 3), n[:2400].reshape(2, 1200, 3), r[:2400].reshape(2, 1200))):
+        np.testing.assert_array_equal(a, b)
