@@ -99,6 +99,16 @@ def _sd(x0, x1, x2, Ai, sc, tri, pn, lo, h, dims, start, items, dc):
 
 
 @numba.njit(cache=True, inline="always")
+def _coarse_samples(a0, a1, step):
+    """How many coarse samples ``a0 + k * step`` lie in ``[a0, a1]`` (to 1e-9 mm): the
+    selection and its table of coarse violations (:func:`_coarse_kernel`) must agree."""
+    n = int(math.ceil((a1 - a0) / step)) + 1
+    while n > 0 and a0 + step * (n - 1) > a1 + 1e-9:
+        n -= 1
+    return n
+
+
+@numba.njit(cache=True, inline="always")
 def _ray_speeds(origin, d0, d1, d2, ta, tb, K, R, t, lc):
     """Per camera, a bound of how fast the map value changes along the ray over
     ``[ta, tb]``, px per mm: ``lc`` (the rig-wide bound) where this ray's own is not lower.
@@ -201,9 +211,7 @@ def _select_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, ope
         qs = np.inf
         nfeas = 0
         oob = False
-        n = int(math.ceil((a1 - a0) / step)) + 1
-        while n > 0 and a0 + step * (n - 1) > a1 + 1e-9:
-            n -= 1
+        n = _coarse_samples(a0, a1, step)
         # Without the segment's length (a selection that only feeds a fit), the coarse
         # samples' distances come first and the hull tests go by increasing distance, from
         # the nearest, until no untested sample can cost less than the best (a cost is its
@@ -396,9 +404,7 @@ def _coarse_kernel(origins, entry, dirs, t0, t1, K, R, t, dist, maps, sizes, ope
         d0 = dirs[r, 0]
         d1 = dirs[r, 1]
         d2 = dirs[r, 2]
-        n = int(math.ceil((a1 - a0) / step)) + 1
-        while n > 0 and a0 + step * (n - 1) > a1 + 1e-9:
-            n -= 1
+        n = _coarse_samples(a0, a1, step)
         first = 0
         grec = np.empty(C)
         trec = np.full(C, np.nan)
