@@ -1574,11 +1574,11 @@ def _numpy_level(
 
 
 def _finish(
-    run: _Carving, bounds: np.ndarray, mesh_voxel_mm: float | None, st: dict[str, Any], t0: float
+    run: _Carving, bounds: np.ndarray, mesh_voxel_mm: float | None, st: dict[str, Any], t0: float, mesh: bool = True
 ) -> Reconstruction:
     """The carving's points gathered, its display mesh over the occupied cells
-    (:func:`_mesh`) and its diagnostics in ``st`` (``t0``: the start, :func:`time.perf_counter`
-    seconds)."""
+    (:func:`_mesh`; none without ``mesh``) and its diagnostics in ``st`` (``t0``: the start,
+    :func:`time.perf_counter` seconds)."""
     points = np.concatenate(run.pts) if run.pts else np.zeros((0, 3))
     normals = np.concatenate(run.nrm) if run.nrm else np.zeros((0, 3))
     resid = np.concatenate(run.res) if run.res else np.zeros(0)
@@ -1598,7 +1598,7 @@ def _finish(
     voxel_mm, occ_lo, occ_hi = run.voxel_mm, run.occ_lo, run.occ_hi
     mv = float(mesh_voxel_mm) if mesh_voxel_mm else max(voxel_mm, 0.5)
     info: dict[str, Any] = dict(mesh_grid=0, mesh_evaluated=0)
-    if np.all(np.isfinite(occ_lo)) and len(points):
+    if mesh and np.all(np.isfinite(occ_lo)) and len(points):
         mv = _mesh_pitch(occ_lo, occ_hi, mv)
         verts, faces, info = _mesh(run.views, occ_lo - mv, occ_hi + mv, mv, run.jit, run.stack)
     else:
@@ -1608,7 +1608,7 @@ def _finish(
         n_points=len(points),
         residual_mm_max=float(np.max(np.abs(resid), initial=0.0)),
         occupied_bounds=np.array([occ_lo, occ_hi]),
-        mesh_voxel_mm=mv,
+        mesh_voxel_mm=mv if mesh else None,
         time_s=dict(carve=t1 - t0, points=t2 - t1, mesh=t3 - t2, total=t3 - t0),
         **info,
     )
@@ -1624,6 +1624,7 @@ def carve(
     open_border: Sequence[bool] | None = None,
     coarse_mm: float | None = None,
     mesh_voxel_mm: float | None = None,
+    mesh: bool = True,
     stats: dict[str, Any] | None = None,
     backend: str = "auto",
     supports: Sequence[tuple[int, int, int, int] | None] | None = None,
@@ -1651,6 +1652,9 @@ def carve(
         about 1/16 of the largest extent of ``bounds``).
     mesh_voxel_mm : float, optional
         Pitch of the display mesh grid, mm (default ``max(voxel_mm, 0.5)``).
+    mesh : bool, optional
+        Make the display mesh (default True); without it ``vertices`` and ``faces`` are
+        empty and ``mesh_voxel_mm`` in ``stats`` is None.
     stats : dict, optional
         Cleared, then filled in place with diagnostics: ``levels`` (one dict per level:
         ``cell_mm``, ``evaluated``, ``carved``, ``inside``, ``boundary`` cell counts),
@@ -1683,8 +1687,8 @@ def carve(
         ``normals`` (N, 3): outward unit normals ``-grad f / |grad f|`` (central
         differences over +-2 pixel footprints, taken within that step of the point).
         ``vertices`` (V, 3) / ``faces`` (F, 3): marching-cubes mesh of ``f`` over the
-        occupied cells, faces oriented outward. All empty when the hull is empty (a
-        closed camera sees nothing, or the cones do not meet).
+        occupied cells, faces oriented outward (empty without ``mesh``). All empty when the
+        hull is empty (a closed camera sees nothing, or the cones do not meet).
 
     Raises
     ------
@@ -1709,4 +1713,4 @@ def carve(
         stack = jit.stack_views(views, buf)
     run = _start_carving(views, jit, stack, box, voxel_mm, coarse_mm)
     _carve_cells(run)
-    return _finish(run, box, mesh_voxel_mm, st, t0)
+    return _finish(run, box, mesh_voxel_mm, st, t0, mesh)

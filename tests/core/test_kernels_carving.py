@@ -628,3 +628,12 @@ def test_the_display_mesh_grid_is_coarsened_to_fit_its_memory_bound(rig_lo, sphe
     assert capped["mesh_grid"] <= st["mesh_grid"] // 8
     assert capped["mesh_voxel_mm"] > 1.0
     assert len(rec.faces) > 100 and np.array_equal(rec.points, full.points)
+
+
+def test_without_the_mesh_the_same_points_and_no_mesh(rig_lo, sphere_lo):
+    st: dict = {}
+    full = ck.carve(rig_lo, sphere_lo, voxel_mm=0.5)
+    bare = ck.carve(rig_lo, sphere_lo, voxel_mm=0.5, mesh=False, stats=st)
+    assert np.array_equal(bare.points, full.points) and np.array_equal(bare.normals, full.normals)
+    assert bare.vertices.shape == (0, 3) and bare.faces.shape == (0, 3) and len(full.faces) > 100
+    assert st["mesh_voxel_mm"] is None and st["mesh_grid"] == 0 and st["mesh_evaluated"] == 0

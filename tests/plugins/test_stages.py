@@ -161,7 +161,7 @@ def test_mesh_outputs_read_back_with_plyfile_and_open3d(small, tmp_path):
     from inspector.outputs import RECON_MESH_PLY, RECON_PLY, read_ply, write_result
     from inspector_plugins.carve import CarveParams, run_carve
 
-    rec = run_carve(_segment(small), CarveParams(voxel_mm=1.0)).reconstruction
+    rec = run_carve(_segment(small), CarveParams(voxel_mm=1.0, mesh=True)).reconstruction
     assert len(rec.faces) > 100
     res = InspectionResult(capture="c", recipe="r", verdict="pass", error=None, timings_s={}, reconstruction=rec)
     folder = write_result(res, tmp_path)
@@ -195,6 +195,25 @@ def test_mesh_outputs_read_back_with_plyfile_and_open3d(small, tmp_path):
     assert np.allclose(np.asarray(m.vertices), rec.vertices.astype(np.float32))
     pc = o3d.io.read_point_cloud(str(folder / RECON_PLY))
     assert np.allclose(np.asarray(pc.points), rec.points.astype(np.float32))
+
+
+def test_carve_makes_the_display_mesh_only_when_asked(small, tmp_path):
+    """The display mesh is opt-in (nothing in an inspection reads it): without it the same
+    points and normals, no faces, and no reconstruction_mesh.ply in the result folder."""
+    from inspector.model import InspectionResult
+    from inspector.outputs import RECON_MESH_PLY, RECON_PLY, write_result
+    from inspector_plugins.carve import CarveParams, run_carve
+
+    sils = _segment(small)
+    plain = run_carve(sils, build_params(CarveParams, {"voxel_mm": 1.0}, "test")).reconstruction
+    meshed = run_carve(sils, build_params(CarveParams, {"voxel_mm": 1.0, "mesh": True}, "test")).reconstruction
+    assert len(plain.faces) == 0 and len(plain.vertices) == 0 and len(meshed.faces) > 100
+    assert np.array_equal(plain.points, meshed.points) and np.array_equal(plain.normals, meshed.normals)
+    for name, rec in (("plain", plain), ("meshed", meshed)):
+        res = InspectionResult(capture=name, recipe="r", verdict="pass", error=None, timings_s={}, reconstruction=rec)
+        folder = write_result(res, tmp_path)
+        assert (folder / RECON_PLY).is_file()
+        assert (folder / RECON_MESH_PLY).is_file() == (name == "meshed")
 
 
 @pytest.mark.parametrize(
