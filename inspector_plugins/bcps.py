@@ -70,13 +70,6 @@ class SurfaceParams:
     compiled: ClassVar[bool] = False
 
 
-def _bounds(ctx: InspectionContext, margin: float) -> np.ndarray:
-    pts = ctx.need("reconstruction", "bcps").points
-    if len(pts) == 0:
-        raise StageError("the reconstruction is empty")
-    return np.stack([pts.min(axis=0) - margin, pts.max(axis=0) + margin])
-
-
 def _placed_distance(index: Callable[[np.ndarray], np.ndarray], inv: np.ndarray, scale: float, X: np.ndarray) -> np.ndarray:
     """Signed distance, mm, of world points ``X`` (N, 3) to the reference that ``inv`` (4, 4,
     world -> its frame) places, times ``scale``."""
@@ -94,7 +87,7 @@ def select_rays(ctx: InspectionContext, p: RayParams, rays: ContourRays, pose: n
     """
     sils, ref = ctx.need("silhouettes", "bcps"), ctx.need("reference", "bcps")
     views, stack = rays.views()
-    bounds = _bounds(ctx, p.margin_mm)
+    bounds = rays.bounds(p.margin_mm)
     prior = prior if prior is not None else SizePrior()
     sized = not prior.is_identity
     place = prior.placement(pose)  # = pose for the nominal reference

@@ -11,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from inspector.errors import StageError
 from inspector.kernels import bcps as bk
 from inspector.kernels.silhouette import inside_map, inside_region
 from inspector.kernels.threads import map_threads
@@ -28,6 +29,17 @@ class ContourRays:
         self._views: tuple[list[bk.View], object | None] | None = None
         self._rays: dict[int, bk.Rays] = {}
         self._coarse: tuple[tuple[object, ...], list[bk.CoarseHull]] | None = None
+        self._bounds: dict[float, np.ndarray] = {}
+
+    def bounds(self, margin_mm: float) -> np.ndarray:
+        """The reconstruction's box grown by ``margin_mm``: (2, 3) ``[min, max]``, mm."""
+        if margin_mm not in self._bounds:
+            pts = self.ctx.need("reconstruction", "bcps").points
+            if len(pts) == 0:
+                raise StageError("the reconstruction is empty")
+            cols = np.ascontiguousarray(pts.T)  # (numpy's min over the rows of (N, 3) is 10x slower)
+            self._bounds[margin_mm] = np.stack([cols.min(axis=1) - margin_mm, cols.max(axis=1) + margin_mm])
+        return self._bounds[margin_mm]
 
     def views(self) -> tuple[list[bk.View], object | None]:
         """The silhouettes as :class:`~inspector.kernels.bcps.View` and, compiled, their stack."""

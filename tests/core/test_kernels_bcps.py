@@ -524,3 +524,34 @@ def test_a_camera_without_silhouette_is_packed_whole(views):
         assert tuple(stack.sizes[i]) == (W, H, x0, y0, w, h, fill)
         np.testing.assert_array_equal(stack.maps[i, :h, :w], crop)
     assert tuple(stack.sizes[-1][2:]) == (0, 0, W, H, 0)
+
+
+def test_ray_box_is_where_the_ray_is_inside_the_box():
+    """Entry and exit of rays in a box, also for rays along an axis, along a face's plane and
+    starting inside: the box holds the ray's points between them and none beyond."""
+    rng = np.random.default_rng(7)
+    bounds = np.array([[-10.0, -12.0, -9.0], [11.0, 10.0, 12.0]])
+    for origin in (np.array([100.0, 50.0, -30.0]), np.array([-10.0, 0.0, 0.0]), np.array([1.0, 2.0, 3.0])):
+        aim = rng.uniform(bounds[0] - 5, bounds[1] + 5, (3000, 3))
+        aim[:300, 0] = origin[0]  # no x motion: inside the x slab only if the origin is
+        aim[300:400, :2] = origin[:2]  # along z
+        dirs = aim - origin
+        dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+        t0, t1 = bk.ray_box(origin, dirs, bounds)
+        assert t0.min() >= 0.0
+
+        def inside(t, rows, origin=origin, dirs=dirs):
+            p = origin + np.asarray(t)[rows, None] * dirs[rows]
+            return np.all((p >= bounds[0] - 1e-9) & (p <= bounds[1] + 1e-9), axis=1)
+
+        hit = t1 > t0
+        assert hit.any() and (~hit).any() != bool(np.all((bounds[0] < origin) & (origin < bounds[1])))
+        # an axis the ray does not move along: it meets the box only within that slab (a face's plane included)
+        assert hit[:300].any() == bool(bounds[0, 0] <= origin[0] <= bounds[1, 0])
+        assert hit[300:400].any() == bool(np.all((bounds[0, :2] <= origin[:2]) & (origin[:2] <= bounds[1, :2])))
+        for f in np.linspace(0.0, 1.0, 7):
+            assert inside(np.where(hit, t0, 0.0) + f * np.where(hit, t1 - t0, 0.0), hit).all()
+        assert not inside(np.where(hit, t1, 0.0) + 1e-6, hit).any()
+        entered = hit & (t0 > 0)
+        assert not inside(t0 - 1e-6, entered).any()
+        assert not any(inside(np.full(len(dirs), t), ~hit).any() for t in np.linspace(1e-6, 400.0, 801))
