@@ -160,6 +160,7 @@ def precompile(work: Path, say: Callable[[str], None] = print, parallel: int = 2
             verdicts[rname] = {o.result.capture: o.result.verdict
                                for o in run_batch(session.recipe, acqs, session.pm, reference=session.reference, outdir=out)}
         _characteristics_kernels()
+        _display_mesh_kernels(folders[0])
     return {"seconds": time.perf_counter() - t0, "ahead": ahead, "kernels": progress.kernels,
             "compiled": progress.compiled, "verdicts": verdicts}
 
@@ -176,6 +177,16 @@ def _characteristics_kernels() -> None:
     fits.fit_cylinder(P, axis=np.array([0.0, 0.0, 1.0]), point=np.zeros(3), radius=5.0)
     box = load_reference("builtin:cube30")
     MeshDistance(np.asarray(box.vertices, float), np.asarray(box.faces)).closest(P, parallel=False)
+
+
+def _display_mesh_kernels(folder: Path) -> None:
+    """The carving's display-mesh kernels: ``carve.hull`` makes the mesh only with ``mesh =
+    true``, which no built-in recipe sets, so without this such a recipe's first part would
+    compile them."""
+    from inspector.kernels.carving import carve  # lazy: Numba (see the module docstring)
+
+    cap = read_capture(folder)
+    carve(cap.rig.cameras, [np.asarray(cap.images[c.name]) < 128 for c in cap.rig.cameras], voxel_mm=1.0, mesh=True)
 
 
 #: The recorded kernels (``--record``): what :func:`compile_listed` compiles ahead of the run.

@@ -30,8 +30,6 @@ from typing import Any
 
 import numpy as np
 
-from inspector.kernels.robust import tukey
-
 __all__ = ["SizePrior", "fit_size_prior"]
 
 #: The sized reference must fit the points no worse than the nominal one: its median
@@ -103,21 +101,17 @@ def _rotation(w: np.ndarray) -> np.ndarray:
 def _distance_and_gradient(index, q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Signed distance (N,), closest points (N, 3), unit outward gradient (N, 3) and a
     validity mask (N,) of reference-frame points ``q`` (N, 3)."""
-    sd = index(q)
-    c, tid = index.closest(q)
-    ok = np.isfinite(sd) & (tid >= 0)
-    # The distance's gradient: exact at edges and corners too, where the closest point's
-    # triangle normal is not the direction the distance changes in.
-    g = q - c
-    norm = np.linalg.norm(g, axis=1)
-    far = norm > 1e-9
-    gn = np.where(far[:, None], g / np.where(far, sd, 1.0)[:, None], index.pn[np.maximum(tid, 0), 0])
-    return sd, c, gn, ok
+    # The distance's gradient (p - c) / sd: exact at edges and corners too, where the closest
+    # point's triangle normal is not the direction the distance changes in.
+    sd, c, gn, tid = index.gradients(q)
+    return sd, c, gn, np.isfinite(sd) & (tid >= 0)
 
 
 def _gauss_newton(P: np.ndarray, index, c0: np.ndarray, start: tuple, robust_mm: float, start_mm: float,
                   iterations: int) -> tuple[float, np.ndarray, np.ndarray] | None:
     """IRLS of ``(scale, Q, d)`` from ``start`` on points ``P`` (N, 3); None if degenerate."""
+    from inspector.kernels.gn_jit import size_equations  # lazy: Numba only where a fit runs
+
     s, Q, d = float(start[0]), np.array(start[1], float), np.array(start[2], float)
     cutoff = float(start_mm)
     for _ in range(int(iterations)):
@@ -128,18 +122,14 @@ def _gauss_newton(P: np.ndarray, index, c0: np.ndarray, start: tuple, robust_mm:
         r = s * sd
         spread = 4.685 * 1.4826 * float(np.median(np.abs(r[ok])))
         cutoff = max(float(robust_mm), min(cutoff, max(spread, float(robust_mm))))
-        w = np.where(ok, tukey(np.where(ok, r, 0.0), cutoff), 0.0)
-        if w.sum() <= 0:
-            return None
         # In the prior's frame the surface point c moves by (c - c0) ds + w x (c - c0) + dd,
         # so r changes by -(g . (c - c0)) ds - ((c - c0) x g) . w - g . dd to first order
-        # (g, c mapped by Q to the world side).
-        gw, cw = gn @ Q.T, (c - c0) @ Q.T
-        J = np.column_stack([np.einsum("ij,ij->i", gw, cw), s * np.cross(cw, gw), gw])
-        JW = J * w[:, None]
-        H = JW.T @ J
+        # (g, c mapped by Q to the world side): the system in one compiled pass.
+        H, b, sw = size_equations(r, ok, gn, c, c0, Q, s, cutoff)
+        if sw <= 0:
+            return None
         H += 1e-9 * np.trace(H) * np.eye(7)
-        x = np.linalg.solve(H, JW.T @ np.where(ok, r, 0.0))
+        x = np.linalg.solve(H, b)
         s += x[0]
         Q = _rotation(x[1:4]) @ Q
         d += x[4:7]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from inspector.kernels.gn_jit import normal_equations
+from inspector.kernels.gn_jit import normal_equations, size_equations
 from inspector.kernels.robust import tukey
 
 
@@ -64,3 +64,38 @@ def test_no_weighted_point_gives_an_empty_system():
     H, b, q0, scale, cost, sw, count = normal_equations(q, c, n, r, cutoff, R, None, -0.5)
     assert (count == 0).all() and (sw == 1.0).all() and (scale == 1e-9).all()
     assert not H.any() and not b.any() and not q0.any() and not cost.any()
+
+
+def numpy_size_system(r, ok, g, c, c0, Q, s, cutoff):
+    """The size model's system array by array (the numpy the kernel replaced in
+    :func:`inspector.kernels.prior.fit_size_prior`)."""
+    w = np.where(ok, tukey(np.where(ok, r, 0.0), cutoff), 0.0)
+    gw, cw = g @ Q.T, (c - c0) @ Q.T
+    J = np.column_stack([np.einsum("ij,ij->i", gw, cw), s * np.cross(cw, gw), gw])
+    JW = J * w[:, None]
+    return JW.T @ J, JW.T @ np.where(ok, r, 0.0), w.sum()
+
+
+@pytest.mark.parametrize("N, seed", [(7000, 1), (300, 2)])
+def test_size_system_is_numpys(N, seed):
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    g = rng.normal(size=(N, 3))
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    c = rng.normal(scale=12.0, size=(N, 3)) + [1.0, 2.0, -3.0]
+    r = rng.normal(scale=0.08, size=N)
+    r[:N // 10] = 0.5  # beyond the cut-off: no weight
+    ok = rng.random(N) > 0.05
+    g[~ok] = np.nan  # a point without a distance must not spoil the sums
+    c0 = np.array([0.5, -0.2, 0.1])
+    Q = Rotation.from_rotvec([0.1, -0.3, 0.2]).as_matrix()
+    H, b, sw = size_equations(r, ok, g, c, c0, Q, 0.98, 0.2)
+    ok_rows = ok.copy()
+    want_H, want_b, want_sw = numpy_size_system(r[ok_rows], ok[ok_rows], g[ok_rows], c[ok_rows], c0, Q, 0.98, 0.2)
+    assert np.array_equal(H, H.T) and np.isfinite(H).all()
+    np.testing.assert_allclose(H, want_H, rtol=1e-11, atol=1e-9)
+    np.testing.assert_allclose(b, want_b, rtol=1e-11, atol=1e-12)
+    assert sw == pytest.approx(want_sw, rel=1e-12)
+    none = size_equations(r, np.zeros(N, bool), g, c, c0, Q, 0.98, 0.2)
+    assert none[2] == 0.0 and not none[0].any() and not none[1].any()

@@ -129,3 +129,34 @@ def test_residuals_in_one_pass_are_closest_and_numpy_bit_for_bit(with_fallback):
     assert [a.shape for a in got] == [(2, 1200, 3), (2, 1200, 3), (2, 1200)]
     for a, b in zip(got, (c[:2400].reshape(2, 1200, 3), n[:2400].reshape(2, 1200, 3), r[:2400].reshape(2, 1200))):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("with_fallback", [False, True])
+def test_gradients_in_one_pass_are_the_distance_closest_and_numpy_bit_for_bit(with_fallback):
+    """The size fit's question in one compiled pass: the signed distance, the closest point,
+    the distance's unit gradient ((p - c) / sd, the face's normal on the surface) and the
+    triangle, to the bit what ``index(p)``, :meth:`closest` and numpy after them give; beyond
+    the band the fallbacks answer (NaN and -1 without them)."""
+    mesh = load_reference("builtin:bracket", recentre=False)
+    V, F = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
+    md = MeshDistance(V, F, band_mm=1.0)
+    P = _near_surface(mesh, 3000, 1.5, seed=11)  # some beyond the 1 mm band
+    P[:40] = mesh.vertices[mesh.faces[:40, 0]] * 0.5 + mesh.vertices[mesh.faces[:40, 1]] * 0.5  # on the surface
+    if with_fallback:
+        wide = MeshDistance(V, F, band_mm=40.0)
+        md.fallback, md.fallback_closest = wide.near, wide.closest
+    sd, c, g, tid = md.gradients(P)
+    want_sd = md(P)
+    want_c, want_t = md.closest(P)
+    d = P - want_c
+    far = np.linalg.norm(d, axis=1) > 1e-9
+    want_g = np.where(far[:, None], d / np.where(far, want_sd, 1.0)[:, None], md.pn[np.maximum(want_t, 0), 0])
+    miss = want_t < 0
+    assert (not miss.any()) if with_fallback else 0.05 < miss.mean() < 0.5
+    assert (~far).sum() >= 20  # the face-normal branch is exercised
+    np.testing.assert_array_equal(tid, want_t)
+    np.testing.assert_array_equal(sd, want_sd)
+    np.testing.assert_array_equal(c, want_c)
+    np.testing.assert_array_equal(g[~miss], want_g[~miss])
+    assert np.isnan(g[miss]).all()
+    np.testing.assert_allclose(np.linalg.norm(g[~miss], axis=1), 1.0, atol=1e-9)
