@@ -41,6 +41,7 @@ from inspector.errors import RecipeError
 from inspector.kernels import bcps as bk
 from inspector.kernels.bcps import confidence
 from inspector.kernels.deviation import cluster_points, deviation_stats
+from inspector.kernels.extent import bounds_of
 from inspector.kernels.silhouette import sample_bilinear
 from inspector.model import Defect, DeviationStats, Evaluation, EvaluationSummary, RegionSummary, Rig
 from inspector.params import param
@@ -472,7 +473,7 @@ def calibration_health(ctx: InspectionContext, p: EvaluateParams) -> dict[str, A
         # about a pixel (6 cameras, 128 px, bcps.surface without refine_pose: 0.3-1 px).
         return None
     margin = max(1.0, 2.0 * float(recon.voxel_mm))
-    lo, hi = recon.points.min(axis=0), recon.points.max(axis=0)
+    lo, hi = bounds_of(recon.points)
     box = np.stack([lo - margin, hi + margin])
     centre = 0.5 * (lo + hi)
     rays, normals = [], []

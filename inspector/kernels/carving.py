@@ -114,6 +114,7 @@ import numpy as np
 
 from inspector.kernels import camera as camk
 from inspector.kernels import carving_jit
+from inspector.kernels.extent import bounds_of
 from inspector.kernels.threads import map_threads
 from inspector.model import Camera, Reconstruction
 
@@ -1553,7 +1554,8 @@ def _numpy_level(
     run.count(level, len(cells), int(carved.sum()), int(inside.sum()), int(bnd.sum()))
     kept = inside | bnd if finest else inside
     if kept.any():
-        run.occupy(origin + cells[kept].min(axis=0) * size, origin + (cells[kept].max(axis=0) + 1) * size)
+        lo, hi = bounds_of(cells[kept])
+        run.occupy(origin + lo * size, origin + (hi + 1) * size)
     if not bnd.any():
         return
     if finest:

@@ -55,6 +55,7 @@ import numpy as np
 import open3d as o3d
 
 from inspector.kernels.axis import DEGENERATE, axis_turns, near_axis, scan_turns
+from inspector.kernels.extent import bounds_of
 from inspector.kernels.rigid import (
     POKE_TOLERANCE,
     REF_SAMPLES,
@@ -145,8 +146,8 @@ def _voxel_pick(points: np.ndarray, voxel: float) -> np.ndarray:
     Unlike a voxel-grid average, the kept points are genuine surface samples
     (averaging pulls points off curved surfaces and edges).
     """
-    cell = np.floor((points - points.min(axis=0)) / voxel).astype(np.int64)
-    dims = cell.max(axis=0) + 1
+    cell = np.floor((points - bounds_of(points)[0]) / voxel).astype(np.int64)
+    dims = bounds_of(cell)[1] + 1
     key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
     _, first = np.unique(key, return_index=True)
     return np.sort(first)
