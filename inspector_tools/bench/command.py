@@ -23,8 +23,9 @@ How it is measured
   the first run (Numba compilation, lazy imports, caches) is left out of the statistics.
   Per run: ``load`` and each stage (``result.timings_s``), ``outputs`` (writing the result
   folder and the ``on_result`` hook: the rest of the run) and ``cycle`` (the whole run),
-  with the machine's 1-minute load average before and after it (``loadavg``): on a
-  shared machine other jobs' load stands beside every figure.
+  with the machine's 1-minute load average before and after it (``loadavg``) and the share
+  of its CPU time the hypervisor gave other guests meanwhile (``steal``, from ``/proc/stat``):
+  on a shared machine other jobs' load stands beside every figure.
 - Memory: ``resource.getrusage(RUSAGE_SELF).ru_maxrss`` after the runs (the process's
   high-water mark, imports included), and its increase over the warm-up and timed runs.
 - Carving comparison, after the memory figure is taken: the capture's images are

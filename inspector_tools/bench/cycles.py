@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 from inspector.capture_folder import read_capture
 from inspector.registry import Acquisition
 from inspector.runner import run_batch
-from inspector_tools.bench.common import loadavg, maxrss_mb, rss_mb, stats
+from inspector_tools.bench.common import cpu_jiffies, loadavg, maxrss_mb, rss_mb, stats, steal_share
 
 if TYPE_CHECKING:
     from inspector.manager import PluginManager
@@ -35,8 +35,9 @@ def bench_cycles(recipe: Recipe, reference: Reference | None, pm: PluginManager,
     """Inspect ``folder`` ``1 + runs`` times with :func:`run_batch` (first run = warm-up).
 
     Returns a dict: ``warmup_s``, ``warmup`` (the warm-up run's record), ``runs`` (per run: ``verdict``, ``error``, ``cycle_s``,
-    ``timings_s`` with ``outputs`` added, ``loadavg``: the 1-minute load average before and after, ``cpu_s``: this
-    process's CPU time, every thread), ``loadavg`` (min,
+    ``timings_s`` with ``outputs`` added, ``loadavg``: the 1-minute load average before and after, ``steal``: the
+    share of the machine's CPU time its hypervisor gave other guests during the run (None off Linux), ``cpu_s``: this
+    process's CPU time, every thread), ``loadavg`` and ``steal`` (min,
     median, max of those over the timed runs), ``stages`` (name -> median/min/max over the
     timed runs, ``load``, the stages, ``outputs``, ``total``: timings' total,
     ``cycle`` and ``cycle_cpu``), ``memory`` (MB).
@@ -46,18 +47,18 @@ def bench_cycles(recipe: Recipe, reference: Reference | None, pm: PluginManager,
     warmup_s, warmup = 0.0, None
     for i in range(runs + 1):
         it = run_batch(recipe, [acquisition(folder)], pm, reference=reference, outdir=outdir / f"run{i:02d}")
-        load0 = loadavg()
+        load0, jiffies0 = loadavg(), cpu_jiffies()
         t0, c0 = time.perf_counter(), time.process_time()
         outcome = next(it)
         cycle, cpu = time.perf_counter() - t0, time.process_time() - c0
-        load1 = loadavg()
+        load1, jiffies1 = loadavg(), cpu_jiffies()
         for _ in it:  # pragma: no cover - one acquisition
             pass
         res = outcome.result
         timings = dict(res.timings_s)
         timings["outputs"] = max(cycle - timings.get("total", cycle), 0.0)
         rec = {"verdict": res.verdict, "error": res.error, "cycle_s": cycle, "timings_s": timings,
-               "loadavg": [load0, load1], "cpu_s": cpu}
+               "loadavg": [load0, load1], "steal": steal_share(jiffies0, jiffies1), "cpu_s": cpu}
         if i == 0:
             warmup_s, warmup = cycle, rec
             mem["maxrss_after_warmup_mb"] = maxrss_mb()
@@ -89,4 +90,7 @@ def bench_cycles(recipe: Recipe, reference: Reference | None, pm: PluginManager,
         stages["cycle_cpu"] = stats([r["cpu_s"] for r in records])
     loads = [x for r in records for x in r["loadavg"] if x is not None]
     load = {"min": min(loads), "max": max(loads), "median": statistics.median(loads)} if loads else None
-    return {"warmup_s": warmup_s, "warmup": warmup, "runs": records, "stages": stages, "memory": mem, "loadavg": load}
+    steals = [r["steal"] for r in records if r["steal"] is not None]
+    steal = {"min": min(steals), "max": max(steals), "median": statistics.median(steals)} if steals else None
+    return {"warmup_s": warmup_s, "warmup": warmup, "runs": records, "stages": stages, "memory": mem, "loadavg": load,
+            "steal": steal}

@@ -31,10 +31,12 @@ def print_report(doc: dict[str, Any]) -> None:
         cs = st["cold_start"]
         shown = f"{cs['verdict_s']:.2f} s" if cs["verdict_s"] is not None else "no verdict"
         print(f"  cold process (new `inspector run`, kernels cached): start -> verdict {shown}, exit after {cs['exit_s']:.2f} s")
-    ld = cyc.get("loadavg")
+    ld, sl = cyc.get("loadavg"), cyc.get("steal")
     print(f"  warm-up run {cyc['warmup_s']:.3f} s (left out); {len(cyc['runs'])} timed run(s)"
           + (f"; 1-minute load average during them {ld['min']:.2f}-{ld['max']:.2f} (median {ld['median']:.2f}) "
-             f"on {m['usable_cpus']} CPUs" if ld else ""))
+             f"on {m['usable_cpus']} CPUs" if ld else "")
+          + (f"; CPU stolen by the hypervisor {100 * sl['min']:.0f}-{100 * sl['max']:.0f} % (median "
+             f"{100 * sl['median']:.0f} %)" if sl else ""))
     if cyc["stages"]:
         print()
         print(f"  {'stage':<18}{'median s':>10}{'min s':>10}{'max s':>10}")
@@ -82,8 +84,9 @@ def print_report(doc: dict[str, Any]) -> None:
     cv, ct, ld = t["cycle"]["value_s"], t["cycle"].get("target_s"), t["cycle"].get("loadavg")
     print(f"    cycle <= {ct if ct is not None else float('nan'):.3g} s (median, {cap['cameras']} x {cap['width']}x{cap['height']}):  "
           f"{word(t['cycle']['met'])}" + (f" ({cv:.3f} s" if cv is not None else "")
-          + (f"; load average {ld['min']:.1f}-{ld['max']:.1f} on {m['usable_cpus']} CPUs)" if cv is not None and ld else
-             (")" if cv is not None else "")))
+          + (f"; load average {ld['min']:.1f}-{ld['max']:.1f} on {m['usable_cpus']} CPUs" if cv is not None and ld else "")
+          + (f"; {100 * t['cycle']['steal']['median']:.0f} % of the CPU stolen" if cv is not None and t["cycle"].get("steal")
+             else "") + (")" if cv is not None else ""))
     mv, mt = t["memory"]["value_mb"], t["memory"].get("target_mb")
     print(f"    peak memory <= {(mt or float('nan')) / 1000:g} GB:   {word(t['memory']['met'])}"
           + (f" ({mv / 1000:.2f} GB)" if mv is not None else ""))

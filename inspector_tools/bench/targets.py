@@ -99,7 +99,8 @@ def targets(cycles: dict[str, Any], carving: dict[str, Any] | None, startup: dic
     load = cycles.get("loadavg")
     t["cycle"] = {"target": f"median cycle <= {ct:.3g} s" if ct is not None else "no cycle target beyond 5 MP",
                   "target_s": ct, "value_s": cyc["median"] if cyc else None,
-                  "met": (cyc["median"] <= ct) if cyc and ct is not None else None, "loadavg": load}
+                  "met": (cyc["median"] <= ct) if cyc and ct is not None else None, "loadavg": load,
+                  "steal": cycles.get("steal")}
     peak = cycles["memory"].get("peak_mb")
     mt = memory_target_mb(*size)
     t["memory"] = {"target": f"peak memory <= {mt / 1000:g} GB" if mt is not None else "no memory target beyond 5 MP",

@@ -216,3 +216,32 @@ def test_cycles_record_load_and_cpu_per_run(default_recipe, small_capture, tmp_p
     assert set(c["stages"]["cycle_cpu"]) == {"median", "min", "max"}
     if c["loadavg"] is not None:
         assert c["loadavg"]["min"] <= c["loadavg"]["median"] <= c["loadavg"]["max"]
+    # the hypervisor's share beside each run, where the machine reports it (Linux: /proc/stat)
+    import os
+
+    linux = os.path.exists("/proc/stat")
+    assert all((r["steal"] is not None) == linux for r in c["runs"])
+    if linux:
+        assert 0.0 <= c["steal"]["min"] <= c["steal"]["median"] <= c["steal"]["max"] <= 1.0
+
+
+def test_steal_share_between_two_readings(tmp_path, monkeypatch):
+    """The stolen share is the steal ticks over all ticks between two ``/proc/stat`` readings."""
+    from inspector_tools.bench import common
+
+    lines = iter(["cpu  100 5 50 800 10 0 5 30 0 0\n", "cpu  160 5 70 900 10 0 5 80 7 0\n", "intr 1 2\n"])
+    real_open = open
+
+    def fake_open(path, *a, **k):
+        if path == "/proc/stat":
+            p = tmp_path / "stat"
+            p.write_text(next(lines))
+            return real_open(p, *a, **k)
+        return real_open(path, *a, **k)
+
+    monkeypatch.setattr("builtins.open", fake_open)
+    a, b = common.cpu_jiffies(), common.cpu_jiffies()
+    assert a == (30, 1000) and b == (80, 1230)  # guest ticks are inside user's: not added again
+    assert common.steal_share(a, b) == pytest.approx(50 / 230, abs=1e-3)
+    assert common.cpu_jiffies() is None  # not a cpu line
+    assert common.steal_share(a, None) is None and common.steal_share(b, a) is None
