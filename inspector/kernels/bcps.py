@@ -173,7 +173,7 @@ def ray_box(origin: np.ndarray, dirs: np.ndarray, bounds: np.ndarray) -> tuple[n
     t0, t1 : (M,) float
         ``t0 > t1`` when the ray misses the box.
     """
-    # Per axis, then fmax / fmin across the axes (NaN ignored, as nanmax): numpy's reduction over (M, 3) rows is 7x slower.
+    # Per axis, then fmax / fmin across the axes (NaN ignored, as nanmax): with nanmax over (M, 3) rows it was 5x slower.
     with np.errstate(divide="ignore", invalid="ignore"):
         inv = 1.0 / np.ascontiguousarray(np.asarray(dirs, dtype=np.float64).T)
         a = (bounds[0] - origin)[:, None] * inv
